@@ -1,0 +1,241 @@
+"""Angle-discrete integration of the closed loop of Fig. 1, compiled with numba.
+
+The independent variable is the crank angle phi_1, advanced by exactly ``STEP_RAD`` per step
+(eq. 8); the time step is dt = STEP_RAD / omega_1. Within a step the smooth forces (springs,
+dampers, engine torque) act explicitly on the velocities (symplectic Euler), Coulomb friction acts
+as an impulse (Moreau), then the deflections and the backlash state advance with the new
+velocities. A step may be split into ``n_sub`` equal substeps when a parameter set is stiff for
+the angle step (see :func:`simulator.simulate.substeps`); the engine torque is held over them.
+
+Events on the angle grid, at the start of a step, in this order:
+
+1. every pi (30 steps): the cylinder whose working stroke ends reports its mean torque (the
+   cylinder-pressure sensor, once per stroke), then the next cylinder starts its stroke and holds
+   T_m = K * T_ecu for its working cycle (eq. 3), T_ecu being the last request of the ECU;
+2. every pi/2 (15 steps): the speed sensor outputs the mean of the last 30 step speeds (eq. 9), the
+   idle controller updates, and T_ecu = controller output + held test torque request.
+
+Kernels return a status and never raise: 0 completed, 1 the engine speed left 0.5..3 times the
+set-point (a stall or run-away of a non-physical parameter set), 2 an output buffer filled up.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from simulator.angle_grid import (
+    N_CYL,
+    N_WIN,
+    RPM_PER_RAD_S,
+    STEP_RAD,
+    STEPS_PER_CYCLE,
+    STEPS_PER_SPEED_SAMPLE,
+    STEPS_PER_STROKE,
+)
+from simulator.chirp import test_torque
+from simulator.couplings import (
+    backlash_torque,
+    backlash_update,
+    dmf_smooth_torque,
+    friction_impulse,
+)
+
+STATUS_OK = 0
+STATUS_SPEED_RANGE = 1
+STATUS_BUFFER_FULL = 2
+
+SPEED_COLUMNS = ("t_s", "speed_rpm", "torque_request_nm", "delta12_rad", "delta23_rad")
+"""Columns of a kernel's speed-event output: time, filtered speed, T_ecu and the deflections."""
+TORQUE_COLUMNS = ("t_s", "mean_torque_nm", "cylinder")
+"""Columns of a kernel's stroke-event output."""
+
+MIN_SPEED_RATIO = 0.5
+"""The run stops below this fraction of the set-point speed (stall)."""
+MAX_SPEED_RATIO = 3.0
+"""The run stops above this multiple of the set-point speed (run-away)."""
+
+
+@numba.njit(cache=True)
+def run_plant(
+    params: np.ndarray,
+    combustion_shape: np.ndarray,
+    compression: np.ndarray,
+    inertia: np.ndarray,
+    controller: np.ndarray,
+    schedule: np.ndarray,
+    request_period: float,
+    t_end: float,
+    n_sub: int,
+    sigmas: np.ndarray,
+    cv_noise: np.ndarray,
+    speed_noise: np.ndarray,
+    torque_noise: np.ndarray,
+    out_speed: np.ndarray,
+    out_torque: np.ndarray,
+) -> tuple[int, int, int]:
+    """Simulate one test; fill ``out_speed`` and ``out_torque`` in place.
+
+    Parameters
+    ----------
+    params
+        Drivetrain parameters in the order of :data:`simulator.parameters.NAMES`, SI units.
+    combustion_shape, compression, inertia
+        Engine tables of :class:`simulator.engine.EngineTables`.
+    controller
+        :meth:`simulator.controller.IdleController.as_array`.
+    schedule
+        Chirp schedule (n, 5), :data:`simulator.chirp.CHIRP_COLUMNS`.
+    request_period
+        Period of the test-torque request frames, s.
+    t_end
+        Simulated duration, s.
+    n_sub
+        Substeps per angle step (>= 1).
+    sigmas
+        Standard deviations: relative combustion variation of T_m, speed noise in rpm, torque
+        noise in N*m.
+    cv_noise, torque_noise
+        Standard normal draws, one per working stroke.
+    speed_noise
+        Standard normal draws, one per speed sample.
+    out_speed
+        Output (n_max, 5), columns :data:`SPEED_COLUMNS`.
+    out_torque
+        Output (n_max, 3), columns :data:`TORQUE_COLUMNS`.
+
+    Returns
+    -------
+    tuple of int
+        Number of speed samples, number of torque samples, status.
+    """
+    j1, j2, j3 = params[0], params[1], params[2]
+    c12, c23, d12, d23 = params[3], params[4], params[5], params[6]
+    tc12, half12, half23 = params[7], 0.5 * params[8], 0.5 * params[9]
+    t_loss, gain = params[10], params[11]
+    inv1, inv2, inv3 = 1.0 / j1, 1.0 / j2, 1.0 / j3
+    setpoint, kp, ki = controller[0], controller[1], controller[2]
+    u_min, u_max, closed = controller[3], controller[4], controller[5] > 0.5
+    sigma_cv, sigma_speed, sigma_torque = sigmas[0], sigmas[1], sigmas[2]
+
+    w_set = setpoint / RPM_PER_RAD_S
+    w_min, w_max = MIN_SPEED_RATIO * w_set, MAX_SPEED_RATIO * w_set
+    w1 = w_set
+    w2 = w_set
+    w3 = w_set
+    delta12 = 0.0
+    delta23 = 0.0
+    backlash = 0.0
+    held = np.full(N_CYL, t_loss)
+    integral = min(max(t_loss / gain, u_min), u_max)
+    request = integral + test_torque(0.0, schedule, request_period)
+    window = np.full(N_WIN, w_set)
+    window_sum = N_WIN * w_set
+    window_pos = 0
+
+    t = 0.0
+    t_control = 0.0
+    step = 0
+    n_speed = 0
+    n_torque = 0
+    max_speed = out_speed.shape[0]
+    max_strokes = min(out_torque.shape[0], cv_noise.shape[0])
+    while t < t_end:
+        angle_index = step % STEPS_PER_CYCLE
+        if step % STEPS_PER_STROKE == 0:
+            stroke = step // STEPS_PER_STROKE
+            if stroke >= max_strokes:
+                return n_speed, n_torque, STATUS_BUFFER_FULL
+            if stroke > 0:
+                finished = (stroke - 1) % N_CYL
+                out_torque[n_torque, 0] = t
+                out_torque[n_torque, 1] = held[finished] + sigma_torque * torque_noise[n_torque]
+                out_torque[n_torque, 2] = finished
+                n_torque += 1
+            held[stroke % N_CYL] = gain * request * (1.0 + sigma_cv * cv_noise[stroke])
+        if step % STEPS_PER_SPEED_SAMPLE == 0 and step > 0:
+            if n_speed >= max_speed:
+                return n_speed, n_torque, STATUS_BUFFER_FULL
+            measured = window_sum / N_WIN * RPM_PER_RAD_S + sigma_speed * speed_noise[n_speed]
+            if closed:
+                error = setpoint - measured
+                integral = min(max(integral + ki * error * (t - t_control), u_min), u_max)
+                command = min(max(kp * error + integral, u_min), u_max)
+            else:
+                command = integral
+            t_control = t
+            request = command + test_torque(t, schedule, request_period)
+            out_speed[n_speed, 0] = t
+            out_speed[n_speed, 1] = measured
+            out_speed[n_speed, 2] = request
+            out_speed[n_speed, 3] = delta12
+            out_speed[n_speed, 4] = delta23
+            n_speed += 1
+
+        if w1 < w_min or w1 > w_max:
+            return n_speed, n_torque, STATUS_SPEED_RANGE
+        dt = STEP_RAD / w1
+        engine = compression[angle_index] + inertia[angle_index] * w1 * w1
+        for cylinder in range(N_CYL):
+            shifted = (angle_index - cylinder * STEPS_PER_STROKE) % STEPS_PER_CYCLE
+            engine += held[cylinder] * combustion_shape[shifted]
+        drive = engine - t_loss
+        h = dt / n_sub
+        for _ in range(n_sub):
+            rate12 = w1 - w2
+            rate23 = w2 - w3
+            torque12 = dmf_smooth_torque(delta12, rate12, c12, d12, half12)
+            torque23 = backlash_torque(delta23, rate23, backlash, c23, d23, half23)
+            w1 += h * inv1 * (drive - torque12)
+            w2 += h * inv2 * (torque12 - torque23)
+            w3 += h * inv3 * torque23
+            impulse = friction_impulse(w1 - w2, inv1, inv2, tc12, h)
+            w1 -= impulse * inv1
+            w2 += impulse * inv2
+            delta12 += h * (w1 - w2)
+            delta23_old = delta23
+            delta23 += h * (w2 - w3)
+            backlash = backlash_update(delta23, delta23_old, backlash, c23, d23, half23, h)
+
+        window_sum += w1 - window[window_pos]
+        window[window_pos] = w1
+        window_pos = (window_pos + 1) % N_WIN
+        t += dt
+        step += 1
+    return n_speed, n_torque, STATUS_OK
+
+
+@numba.njit(cache=True, parallel=True)
+def run_plant_batch(
+    params: np.ndarray,
+    combustion_shape: np.ndarray,
+    compression: np.ndarray,
+    inertia: np.ndarray,
+    controller: np.ndarray,
+    schedules: np.ndarray,
+    request_period: float,
+    t_end: float,
+    n_sub: np.ndarray,
+    sigmas: np.ndarray,
+    cv_noise: np.ndarray,
+    speed_noise: np.ndarray,
+    torque_noise: np.ndarray,
+    out_speed: np.ndarray,
+    out_torque: np.ndarray,
+    counts: np.ndarray,
+) -> None:
+    """Run :func:`run_plant` for many jobs in parallel over the cores.
+
+    Every argument that differs per job has a leading job axis: ``params`` (n, 12),
+    ``schedules`` (n, m, 5; pad unused rows with zero duration), ``n_sub`` (n,), the noise draws
+    and the outputs. ``counts`` (n, 3) receives each job's speed count, torque count and status.
+    """
+    for job in numba.prange(params.shape[0]):
+        n_speed, n_torque, status = run_plant(
+            params[job], combustion_shape, compression, inertia, controller, schedules[job],
+            request_period, t_end, n_sub[job], sigmas, cv_noise[job], speed_noise[job],
+            torque_noise[job], out_speed[job], out_torque[job],
+        )
+        counts[job, 0] = n_speed
+        counts[job, 1] = n_torque
+        counts[job, 2] = status

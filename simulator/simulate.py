@@ -1,0 +1,319 @@
+"""Run the plant: the Python side of the numba kernels in :mod:`simulator.kernel`.
+
+The wrappers validate, draw the random numbers from a seeded numpy Generator, preallocate the
+outputs and hand everything to the compiled kernels, so a run is reproducible from its seed
+whatever the number of threads.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dtid.errors import AnalysisError, ConfigError
+from simulator.angle_grid import RPM_PER_RAD_S, STEP_RAD, STEPS_PER_SPEED_SAMPLE, STEPS_PER_STROKE
+from simulator.chirp import TestPlan, test_torque
+from simulator.controller import IdleController
+from simulator.engine import EngineGeometry, EngineTables, engine_tables
+from simulator.kernel import (
+    MAX_SPEED_RATIO,
+    MIN_SPEED_RATIO,
+    STATUS_OK,
+    STATUS_SPEED_RANGE,
+    run_plant,
+    run_plant_batch,
+)
+from simulator.parameters import NAMES, DrivetrainParameters
+
+STABILITY_LIMIT = 0.5
+"""Largest omega*h (and damping rate * h) a substep may take; symplectic Euler is stable below 2."""
+
+
+@dataclass(frozen=True)
+class SimulationOptions:
+    """How the plant and its sensors behave besides the drivetrain parameters.
+
+    The defaults make realistic, not clean, data: combustion varies from cycle to cycle (a
+    coefficient of variation of 3 % of the mean torque, typical of IMEP at idle) and both sensors
+    are noisy (0.3 rpm on the filtered speed from tooth-wheel jitter, 0.3 N*m on the
+    cylinder-pressure mean torque). :meth:`clean` switches all of that off.
+
+    Attributes
+    ----------
+    pulsation
+        Include the angle-periodic engine torque of eqs. (2), (4), (5); False leaves the mean torque.
+    combustion_variation
+        Relative standard deviation of each stroke's mean torque, 1.
+    speed_noise_rpm
+        Standard deviation of white noise on the filtered speed, rpm.
+    torque_noise_nm
+        Standard deviation of white noise on the measured mean torque, N*m.
+    engine
+        Crank-train data.
+    controller
+        Idle-speed controller (and whether the loop is closed).
+    """
+
+    pulsation: bool = True
+    combustion_variation: float = 0.03
+    speed_noise_rpm: float = 0.3
+    torque_noise_nm: float = 0.3
+    engine: EngineGeometry = field(default_factory=EngineGeometry)
+    controller: IdleController = field(default_factory=IdleController)
+
+    def __post_init__(self) -> None:
+        for name in ("combustion_variation", "speed_noise_rpm", "torque_noise_nm"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"simulation option {name} must be >= 0, got {value}")
+
+    @classmethod
+    def clean(cls, **changes: object) -> SimulationOptions:
+        """Options without combustion variation and sensor noise (other options as given)."""
+        base = {"combustion_variation": 0.0, "speed_noise_rpm": 0.0, "torque_noise_nm": 0.0}
+        return cls(**{**base, **changes})  # type: ignore[arg-type]
+
+    def sigmas(self) -> np.ndarray:
+        """Noise levels in the order the kernel takes them."""
+        return np.array([self.combustion_variation, self.speed_noise_rpm, self.torque_noise_nm])
+
+    def tables(self) -> EngineTables:
+        """Engine tables for these options."""
+        return engine_tables(self.engine) if self.pulsation else EngineTables.disabled()
+
+
+@dataclass(frozen=True)
+class SimulationResult:
+    """What the vehicle's sensors and ECU report during one simulated test.
+
+    Times are simulated test time in s from the start of the test.
+
+    Attributes
+    ----------
+    speed_t, speed_rpm
+        Filtered engine speed samples (every pi/2 of crank angle), rpm.
+    torque_request_nm
+        T_ecu at each speed sample, N*m.
+    delta12_rad, delta23_rad
+        Coupling deflections at each speed sample, rad (not on the bus; for analysis).
+    torque_t, mean_torque_nm, cylinder
+        Mean torque of each working stroke as the cylinder-pressure sensor reports it at the end
+        of the stroke, N*m, and the index (0..3, firing order) of the cylinder.
+    request_t, test_torque_nm
+        The tool's test-torque requests, sent every ``plan.request_period_s``, N*m.
+    parameters, plan, options
+        What was simulated.
+    """
+
+    speed_t: np.ndarray
+    speed_rpm: np.ndarray
+    torque_request_nm: np.ndarray
+    delta12_rad: np.ndarray
+    delta23_rad: np.ndarray
+    torque_t: np.ndarray
+    mean_torque_nm: np.ndarray
+    cylinder: np.ndarray
+    request_t: np.ndarray
+    test_torque_nm: np.ndarray
+    parameters: DrivetrainParameters
+    plan: TestPlan
+    options: SimulationOptions
+
+
+def substeps(params: np.ndarray, controller: IdleController) -> int:
+    """Substeps per angle step that keep the explicit part of the integration stable.
+
+    A Gershgorin bound on the largest eigenvalue of M^-1 C (and of M^-1 D for damping) gives the
+    fastest mode; the longest step is the angle step at the lowest admitted speed.
+
+    Parameters
+    ----------
+    params
+        Parameters ordered as :data:`simulator.parameters.NAMES`.
+    controller
+        Gives the set-point, hence the step time.
+    """
+    j1, j2, j3, c12, c23, d12, d23 = params[:7]
+    stiff = max(2 * c12 / j1, 2 * (c12 + c23) / j2, 2 * c23 / j3)
+    damp = max(2 * d12 / j1, 2 * (d12 + d23) / j2, 2 * d23 / j3)
+    rate = max(math.sqrt(stiff), damp)
+    longest_step = STEP_RAD / (MIN_SPEED_RATIO * controller.setpoint_rpm / RPM_PER_RAD_S)
+    return max(1, math.ceil(rate * longest_step / STABILITY_LIMIT))
+
+
+def _capacity(plan: TestPlan, controller: IdleController) -> tuple[int, int]:
+    """Output rows needed for the speed and stroke events at the highest admitted speed."""
+    steps = plan.end_s * MAX_SPEED_RATIO * controller.setpoint_rpm / RPM_PER_RAD_S / STEP_RAD
+    return int(steps / STEPS_PER_SPEED_SAMPLE) + 8, int(steps / STEPS_PER_STROKE) + 8
+
+
+def test_requests(plan: TestPlan) -> tuple[np.ndarray, np.ndarray]:
+    """The tool's test-torque requests over the whole test: times, s, and values, N*m."""
+    times = np.arange(0.0, plan.end_s, plan.request_period_s)
+    schedule = plan.schedule()
+    values = np.array([test_torque(t, schedule, plan.request_period_s) for t in times])
+    return times, values
+
+
+def simulate(
+    parameters: DrivetrainParameters,
+    plan: TestPlan | None = None,
+    options: SimulationOptions | None = None,
+    seed: int = 0,
+) -> SimulationResult:
+    """Simulate one chirp test of the closed loop.
+
+    Parameters
+    ----------
+    parameters
+        Drivetrain parameter set.
+    plan
+        Test plan; the paper's three-amplitude test by default.
+    options
+        Engine, controller, noise; realistic defaults.
+    seed
+        Seed of the noise draws.
+
+    Returns
+    -------
+    SimulationResult
+
+    Raises
+    ------
+    AnalysisError
+        If the engine stalls or runs away (the parameter set cannot idle).
+    """
+    plan = plan or TestPlan()
+    options = options or SimulationOptions()
+    params = parameters.as_array()
+    n_speed_max, n_stroke_max = _capacity(plan, options.controller)
+    rng = np.random.default_rng(seed)
+    cv_noise = rng.standard_normal(n_stroke_max)
+    torque_noise = rng.standard_normal(n_stroke_max)
+    speed_noise = rng.standard_normal(n_speed_max)
+    out_speed = np.empty((n_speed_max, 5))
+    out_torque = np.empty((n_stroke_max, 3))
+    tables = options.tables()
+    n_speed, n_torque, status = run_plant(
+        params, tables.combustion_shape, tables.compression, tables.inertia,
+        options.controller.as_array(), plan.schedule(), plan.request_period_s, plan.end_s,
+        substeps(params, options.controller), options.sigmas(), cv_noise, speed_noise,
+        torque_noise, out_speed, out_torque,
+    )
+    if status == STATUS_SPEED_RANGE:
+        raise AnalysisError(
+            f"the simulated engine left {MIN_SPEED_RATIO}..{MAX_SPEED_RATIO} times its idle "
+            f"set-point at t = {out_speed[max(n_speed - 1, 0), 0]:.2f} s: this parameter set "
+            "cannot idle (check the inertias, T_loss and K)"
+        )
+    if status != STATUS_OK:
+        raise RuntimeError(f"simulator kernel ended with status {status}")
+    speed = out_speed[:n_speed]
+    torque = out_torque[:n_torque]
+    request_t, request_nm = test_requests(plan)
+    return SimulationResult(
+        speed_t=speed[:, 0].copy(),
+        speed_rpm=speed[:, 1].copy(),
+        torque_request_nm=speed[:, 2].copy(),
+        delta12_rad=speed[:, 3].copy(),
+        delta23_rad=speed[:, 4].copy(),
+        torque_t=torque[:, 0].copy(),
+        mean_torque_nm=torque[:, 1].copy(),
+        cylinder=torque[:, 2].astype(np.int64),
+        request_t=request_t,
+        test_torque_nm=request_nm,
+        parameters=parameters,
+        plan=plan,
+        options=options,
+    )
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    """Outputs of :func:`simulate_batch`, one row per job, valid up to each job's counts.
+
+    Attributes
+    ----------
+    speed
+        (n_jobs, n_max, 5), columns :data:`simulator.kernel.SPEED_COLUMNS`.
+    torque
+        (n_jobs, n_max, 3), columns :data:`simulator.kernel.TORQUE_COLUMNS`.
+    n_speed, n_torque
+        Valid rows per job.
+    status
+        Kernel status per job (0 completed, 1 stalled or ran away, 2 buffer full).
+    """
+
+    speed: np.ndarray
+    torque: np.ndarray
+    n_speed: np.ndarray
+    n_torque: np.ndarray
+    status: np.ndarray
+
+
+def simulate_batch(
+    params: np.ndarray,
+    amplitudes_nm: np.ndarray,
+    plan: TestPlan,
+    options: SimulationOptions | None = None,
+    seed: int = 0,
+) -> BatchResult:
+    """Simulate many parameter sets, each at one chirp amplitude, in parallel over the cores.
+
+    Job i simulates ``params[i]`` driven by a single chirp of amplitude ``amplitudes_nm[i]`` with
+    the frequencies, duration and settling time of ``plan`` (its first chirp). This is the entry
+    point of the identification, which calls it with thousands of jobs.
+
+    Parameters
+    ----------
+    params
+        (n_jobs, 12) parameters ordered as :data:`simulator.parameters.NAMES`, SI units.
+    amplitudes_nm
+        (n_jobs,) chirp amplitude of each job, N*m.
+    plan
+        Chirp timing; its amplitudes are ignored.
+    options
+        Shared by all jobs.
+    seed
+        Seed of the noise draws; job i gets the stream ``(seed, i)``.
+
+    Returns
+    -------
+    BatchResult
+    """
+    options = options or SimulationOptions()
+    params = np.ascontiguousarray(params, dtype=np.float64)
+    if params.ndim != 2 or params.shape[1] != len(NAMES):
+        raise ConfigError(f"params must have shape (n, {len(NAMES)}), got {params.shape}")
+    amplitudes = np.asarray(amplitudes_nm, dtype=np.float64)
+    n_jobs = params.shape[0]
+    if amplitudes.shape != (n_jobs,):
+        raise ConfigError(f"amplitudes_nm must have shape ({n_jobs},), got {amplitudes.shape}")
+    single = TestPlan(
+        amplitudes_nm=(1.0,), f1_hz=plan.f1_hz, f2_hz=plan.f2_hz, duration_s=plan.duration_s,
+        settle_s=plan.settle_s, pause_s=plan.pause_s, request_period_s=plan.request_period_s,
+    )
+    schedules = np.repeat(single.schedule()[None, :, :], n_jobs, axis=0)
+    schedules[:, 0, 4] = amplitudes
+    n_speed_max, n_stroke_max = _capacity(single, options.controller)
+    cv_noise = np.empty((n_jobs, n_stroke_max))
+    torque_noise = np.empty((n_jobs, n_stroke_max))
+    speed_noise = np.empty((n_jobs, n_speed_max))
+    for job in range(n_jobs):
+        rng = np.random.default_rng((seed, job))
+        cv_noise[job] = rng.standard_normal(n_stroke_max)
+        torque_noise[job] = rng.standard_normal(n_stroke_max)
+        speed_noise[job] = rng.standard_normal(n_speed_max)
+    n_sub = np.array([substeps(row, options.controller) for row in params], dtype=np.int64)
+    out_speed = np.empty((n_jobs, n_speed_max, 5))
+    out_torque = np.empty((n_jobs, n_stroke_max, 3))
+    counts = np.zeros((n_jobs, 3), dtype=np.int64)
+    tables = options.tables()
+    run_plant_batch(
+        params, tables.combustion_shape, tables.compression, tables.inertia,
+        options.controller.as_array(), schedules, single.request_period_s, single.end_s, n_sub,
+        options.sigmas(), cv_noise, speed_noise, torque_noise, out_speed, out_torque, counts,
+    )
+    return BatchResult(out_speed, out_torque, counts[:, 0], counts[:, 1], counts[:, 2])
