@@ -15,9 +15,9 @@ class IdleController:
     """PI idle-speed controller, run by the ECU at every filtered-speed sample (every pi/2).
 
     The gains put the loop's crossover near 1 Hz for the reference vehicle (total inertia
-    0.23 kg*m^2: kp ~ J * 2 pi * 1 Hz = 1.45 N*m/(rad/s) = 0.15 N*m/rpm), an order below the
-    drivetrain modes and inside the chirp band's low end, as on a production ECU; the integral
-    corner sits at 0.2 Hz.
+    0.28 kg*m^2: kp ~ J * 2 pi * 1 Hz = 1.76 N*m/(rad/s) = 0.18 N*m/rpm), well below the
+    drivetrain modes, at the low end of the chirp band, as on a production ECU; the integral
+    corner sits at 0.2 Hz (ki = kp * 2 pi * 0.2 Hz).
 
     Attributes
     ----------
@@ -35,8 +35,8 @@ class IdleController:
     """
 
     setpoint_rpm: float = 1000.0
-    kp_nm_per_rpm: float = 0.15
-    ki_nm_per_rpm_s: float = 0.19
+    kp_nm_per_rpm: float = 0.18
+    ki_nm_per_rpm_s: float = 0.23
     request_min_nm: float = -20.0
     request_max_nm: float = 120.0
     closed_loop: bool = True

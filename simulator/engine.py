@@ -77,13 +77,15 @@ class EngineTables:
 
     @classmethod
     def disabled(cls) -> EngineTables:
-        """Tables of an engine whose torque is its mean torque only (no pulsation).
+        """Tables of an engine without pulsation: each stroke delivers its mean torque.
 
-        The combustion shape is the flat 1/N_cyl, so the four cylinders sum to exactly T_m.
+        Each cylinder's shape is 1 over its working stroke (pi after its firing TDC) and 0
+        elsewhere, so the engine torque is the current stroke's T_m, held for the stroke: the
+        continuous hold of :func:`identification.sensor_response.stroke_hold_gain`.
         """
-        flat = np.full(STEPS_PER_CYCLE, 1.0 / N_CYL)
+        stroke = np.where(np.arange(STEPS_PER_CYCLE) < STEPS_PER_STROKE, 1.0, 0.0)
         zero = np.zeros(STEPS_PER_CYCLE)
-        return cls(combustion_shape=flat, compression=zero, inertia=zero)
+        return cls(combustion_shape=stroke, compression=zero, inertia=zero)
 
 
 def combustion_shape(phi: np.ndarray) -> np.ndarray:

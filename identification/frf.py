@@ -1,0 +1,205 @@
+"""Closed-loop frequency responses of one chirp run, paper eqs. (12)-(15).
+
+Per run, all signals are brought onto one uniform time grid at the speed's sample rate (the
+filtered speed by cubic-spline interpolation, which is smooth after the sensor's moving average;
+the mean torque, the torque request and the test torque by holding the last value, which is what
+the ECU and eq. (10) assume). Welch-averaged cross-spectra with the test torque z then give
+
+* G = S_zy / S_zx, the plant seen from the measured mean torque x to the measured speed y (eq. 13),
+* |G_DRV| = |G| |G_p| / |G_n| (eq. 14), (rad/s)/(N*m),
+* |G_ENG| = |S_zx / S_zu| / |G_p| with u = T_ecu (eq. 15), 1,
+
+and the coherence, the smaller of the z-x and z-y coherences (both paths must be clean).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import interpolate, signal
+
+from dtid.errors import AnalysisError
+from identification.runs import ChirpRun
+from identification.sensor_response import speed_filter_gain, torque_hold_gain
+from identification.testdata import Series, TestData
+
+DEFAULT_RESOLUTION_HZ = 0.25
+"""Welch frequency resolution: 4 s segments, a quarter of a typical DMF half-power bandwidth."""
+MAX_GAP_SAMPLES = 5
+"""A run whose speed has a gap longer than this many sample intervals is refused."""
+MIN_SEGMENTS = 2
+"""A run must hold at least this many Welch segments."""
+
+
+@dataclass(frozen=True)
+class FrfEstimate:
+    """Frequency responses of one chirp run.
+
+    Attributes
+    ----------
+    run
+        The chirp run.
+    frequency_hz
+        Frequency grid, Hz: the Welch bins inside the band.
+    drv
+        |G_DRV| of eq. (14), (rad/s)/(N*m).
+    eng
+        |G_ENG| of eq. (15), 1; NaN where the recording has no torque request.
+    coherence
+        min(gamma^2_zx, gamma^2_zy), 1.
+    speed_rpm
+        Mean engine speed over the run, rpm (the speed the sensor corrections use).
+    sample_rate_hz
+        Rate of the uniform grid, Hz.
+    """
+
+    run: ChirpRun
+    frequency_hz: np.ndarray
+    drv: np.ndarray
+    eng: np.ndarray
+    coherence: np.ndarray
+    speed_rpm: float
+    sample_rate_hz: float
+
+    @property
+    def drv_db(self) -> np.ndarray:
+        """20 log10 |G_DRV|, dB re 1 (rad/s)/(N*m)."""
+        return 20 * np.log10(self.drv)
+
+    @property
+    def eng_db(self) -> np.ndarray:
+        """20 log10 |G_ENG|, dB."""
+        return 20 * np.log10(self.eng)
+
+    @property
+    def engine_gain(self) -> float:
+        """K of eq. (24): mean of |G_ENG| over the band (NaN without a torque request)."""
+        return float(np.mean(self.eng))
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready entry: the run, the grid and the magnitudes in dB."""
+        return {
+            "amplitude_nm": self.run.amplitude_nm,
+            "start_s": self.run.start_s,
+            "end_s": self.run.end_s,
+            "f1_hz": self.run.f1_hz,
+            "f2_hz": self.run.f2_hz,
+            "speed_rpm": self.speed_rpm,
+            "engine_gain": None if np.isnan(self.engine_gain) else self.engine_gain,
+            "frequency_hz": self.frequency_hz.tolist(),
+            "drv_db": self.drv_db.tolist(),
+            "eng_db": None if np.all(np.isnan(self.eng)) else self.eng_db.tolist(),
+            "coherence": self.coherence.tolist(),
+        }
+
+
+def _hold(series: Series, grid: np.ndarray) -> np.ndarray:
+    """Value of the last sample at or before each grid time (the first sample before it)."""
+    index = np.searchsorted(series.t, grid, side="right") - 1
+    return series.value[np.clip(index, 0, len(series) - 1)]
+
+
+def _unique_times(series: Series) -> Series:
+    """Drop samples whose timestamp repeats the previous one (duplicated frames)."""
+    keep = np.concatenate(([True], np.diff(series.t) > 0))
+    return Series(series.t[keep], series.value[keep])
+
+
+def estimate_frf(
+    data: TestData,
+    run: ChirpRun,
+    resolution_hz: float = DEFAULT_RESOLUTION_HZ,
+    band_hz: tuple[float, float] | None = None,
+) -> FrfEstimate:
+    """Estimate G_DRV, G_ENG and the coherence of one chirp run.
+
+    Parameters
+    ----------
+    data
+        The test's signals.
+    run
+        The chirp run to analyse (see :func:`identification.runs.find_runs`).
+    resolution_hz
+        Welch frequency resolution, Hz; sets the segment length 1/resolution.
+    band_hz
+        Frequency band to report, Hz; the run's sweep (less half a bin at each end) by default.
+        Must lie inside the sweep and below the mean torque's Nyquist frequency.
+
+    Returns
+    -------
+    FrfEstimate
+
+    Raises
+    ------
+    AnalysisError
+        If the run is too short for the resolution, the speed has a gap, or the band is not
+        covered by the chirp.
+    """
+    data.require()
+    speed = _unique_times(data.speed.window(run.start_s, run.end_s))
+    if len(speed) < 16:
+        raise AnalysisError(
+            f"chirp run at {run.start_s:.1f}-{run.end_s:.1f} s holds only {len(speed)} speed "
+            "samples; the speed signal is missing there"
+        )
+    interval = float(np.median(np.diff(speed.t)))
+    gaps = np.diff(speed.t)
+    if gaps.max() > MAX_GAP_SAMPLES * interval:
+        at = float(speed.t[np.argmax(gaps)])
+        raise AnalysisError(
+            f"the speed signal has a {gaps.max():.3f} s gap at t = {at:.2f} s inside the chirp "
+            f"run at {run.start_s:.1f}-{run.end_s:.1f} s (sample interval {interval * 1e3:.1f} "
+            "ms); frames were lost, so this run cannot give an FRF"
+        )
+    rate = 1.0 / interval
+    nperseg = round(rate / resolution_hz)
+    grid = np.arange(speed.t[0], speed.t[-1], interval)
+    if len(grid) < MIN_SEGMENTS * nperseg:
+        raise AnalysisError(
+            f"chirp run at {run.start_s:.1f}-{run.end_s:.1f} s lasts {run.duration_s:.1f} s, too "
+            f"short for a {resolution_hz} Hz resolution (needs {MIN_SEGMENTS / resolution_hz:.0f} "
+            "s); record a longer chirp or ask for a coarser resolution"
+        )
+    speed_rpm = float(np.mean(speed.value))
+    torque_nyquist = 0.5 * rate / 2
+    lo, hi = band_hz or (run.f1_hz + 0.5 * resolution_hz, run.f2_hz - 0.5 * resolution_hz)
+    lo, hi = max(lo, 0.0), min(hi, 0.98 * torque_nyquist) if band_hz is None else hi
+    sweep_lo, sweep_hi = sorted((run.f1_hz, run.f2_hz))
+    if lo < sweep_lo - 1e-6 or hi > sweep_hi + 1e-6 or hi <= lo:
+        raise AnalysisError(
+            f"band {lo:.2f}-{hi:.2f} Hz is not inside the chirp's sweep {sweep_lo:.2f}-"
+            f"{sweep_hi:.2f} Hz (run at {run.start_s:.1f} s)"
+        )
+    if hi > torque_nyquist:
+        raise AnalysisError(
+            f"band top {hi:.2f} Hz is above {torque_nyquist:.2f} Hz, the Nyquist frequency of a "
+            f"mean torque sampled once per stroke at {speed_rpm:.0f} rpm"
+        )
+
+    y = interpolate.CubicSpline(speed.t, speed.value)(grid)
+    x = _hold(data.mean_torque, grid)
+    z = _hold(data.test_torque, grid)
+    welch = {"fs": rate, "nperseg": nperseg, "window": "hann", "detrend": "constant"}
+    frequency, s_zy = signal.csd(z, y, **welch)
+    _, s_zx = signal.csd(z, x, **welch)
+    _, s_zz = signal.welch(z, **welch)
+    _, s_yy = signal.welch(y, **welch)
+    _, s_xx = signal.welch(x, **welch)
+    keep = (frequency >= lo) & (frequency <= hi)
+    if not np.any(keep):
+        raise AnalysisError(f"no frequency bin of {resolution_hz} Hz lies in {lo:.2f}-{hi:.2f} Hz")
+    f = frequency[keep]
+    s_zy, s_zx, s_zz, s_yy, s_xx = s_zy[keep], s_zx[keep], s_zz[keep], s_yy[keep], s_xx[keep]
+    coherence = np.minimum(
+        np.abs(s_zy) ** 2 / (s_zz * s_yy), np.abs(s_zx) ** 2 / (s_zz * s_xx)
+    )
+    hold = torque_hold_gain(f, speed_rpm)
+    drv = np.abs(s_zy / s_zx) * hold / speed_filter_gain(f, speed_rpm)
+    if data.torque_request is not None and len(data.torque_request) > 1:
+        u = _hold(data.torque_request, grid)
+        _, s_zu = signal.csd(z, u, **welch)
+        eng = np.abs(s_zx / s_zu[keep]) / hold
+    else:
+        eng = np.full_like(f, np.nan)
+    return FrfEstimate(run, f, drv, eng, coherence, speed_rpm, rate)

@@ -1,0 +1,76 @@
+"""Figures of the FRF pipeline, drawn with matplotlib (imported here only, never by computation).
+
+:func:`plot_frf` draws |G_DRV| per amplitude as the paper's Fig. 3, with |G_ENG| and the coherence
+below it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from dtid.errors import RecordingError
+from identification.frf import FrfEstimate
+
+COHERENCE_FLOOR = 0.9
+"""Bins below this coherence are drawn faint: the estimate there is not to be trusted."""
+
+
+def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = "") -> Path:
+    """Save |G_DRV|, |G_ENG| and the coherence of each chirp run to an image file.
+
+    Parameters
+    ----------
+    estimates
+        One FRF per chirp run; runs of equal amplitude share a colour.
+    path
+        Output file; the format follows its suffix (.png, .pdf, .svg).
+    title
+        Figure title.
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    figure, (ax_drv, ax_eng, ax_coh) = plt.subplots(
+        3, 1, sharex=True, figsize=(8, 8), height_ratios=(3, 1.2, 1.2)
+    )
+    amplitudes = sorted({round(e.run.amplitude_nm, 2) for e in estimates})
+    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(len(amplitudes), 1)))
+    for estimate in estimates:
+        colour = colours[amplitudes.index(round(estimate.run.amplitude_nm, 2))]
+        f = estimate.frequency_hz
+        trusted = np.where(estimate.coherence >= COHERENCE_FLOOR, estimate.drv_db, np.nan)
+        label = f"A_test = {estimate.run.amplitude_nm:.1f} N*m ({estimate.run.start_s:.0f} s)"
+        ax_drv.plot(f, estimate.drv_db, color=colour, alpha=0.3, linewidth=0.8)
+        ax_drv.plot(f, trusted, color=colour, label=label)
+        if not np.all(np.isnan(estimate.eng)):
+            ax_eng.plot(f, estimate.eng_db, color=colour)
+        ax_coh.plot(f, estimate.coherence, color=colour)
+    ax_drv.set_ylabel("|G_DRV| / dB re 1 (rad/s)/(N*m)")
+    ax_drv.legend(loc="lower left", fontsize="small")
+    ax_drv.set_title(title or "Drivetrain frequency response (faint: coherence < 0.9)")
+    ax_eng.set_ylabel("|G_ENG| / dB")
+    ax_coh.set_ylabel("coherence")
+    ax_coh.set_ylim(0, 1.05)
+    ax_coh.axhline(COHERENCE_FLOOR, color="grey", linestyle=":", linewidth=0.8)
+    ax_coh.set_xlabel("frequency / Hz")
+    for axis in (ax_drv, ax_eng, ax_coh):
+        axis.grid(True, which="both", alpha=0.3)
+    figure.tight_layout()
+    try:
+        figure.savefig(path, dpi=110)
+    except (OSError, ValueError) as error:
+        raise RecordingError(f"cannot write the plot {path}: {error}") from None
+    finally:
+        plt.close(figure)
+    return path
