@@ -45,6 +45,8 @@ class TestData:
         Total torque request T_ecu, N*m, or None when the recording lacks it (no G_ENG then).
     """
 
+    __test__ = False  # not a pytest test class, despite the name
+
     speed: Series
     mean_torque: Series
     test_torque: Series

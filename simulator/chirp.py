@@ -73,6 +73,8 @@ class TestPlan:
         Period of the tool's test-torque request frames, s.
     """
 
+    __test__ = False  # not a pytest test class, despite the name
+
     amplitudes_nm: tuple[float, ...] = (2.0, 5.0, 10.0)
     f1_hz: float = 1.0
     f2_hz: float = 15.0
@@ -125,7 +127,7 @@ class TestPlan:
 
 
 @numba.njit(cache=True)
-def test_torque(t: float, schedule: np.ndarray, request_period: float) -> float:
+def requested_test_torque(t: float, schedule: np.ndarray, request_period: float) -> float:
     """Test torque the ECU holds at time ``t``: the chirp at the last request instant, N*m.
 
     Parameters

@@ -5,8 +5,8 @@ angle grid of :mod:`simulator.angle_grid` (120 points per working cycle of 4*pi)
 per integration step:
 
 * combustion, eq. (2): per-cylinder shape g(phi) / N_cyl, to be multiplied by the mean torque T_m,i
-  each cylinder holds for its working cycle (the shape is a truncated rect of height 8 over the first
-  pi/2 after the cylinder's firing TDC, mean 1);
+  each cylinder holds for its working cycle (the shape is a truncated rect of height 8 over the
+  first pi/2 after the cylinder's firing TDC, mean 1);
 * compression and expansion, eq. (4): the sum over cylinders, N*m, independent of speed and load;
 * oscillating masses, eq. (5): the sum over cylinders divided by omega^2, N*m*s^2/rad^2.
 
@@ -130,7 +130,8 @@ def compression_torque(phi: np.ndarray, geometry: EngineGeometry) -> np.ndarray:
     v_z = v_c + swept
     wrapped = (phi + np.pi) % (4 * np.pi) - np.pi
     s, ds = piston_travel(wrapped, geometry)
-    pressure = geometry.manifold_pressure_pa * (v_z / (v_c + area * s)) ** geometry.isentropic_exponent
+    kappa = geometry.isentropic_exponent
+    pressure = geometry.manifold_pressure_pa * (v_z / (v_c + area * s)) ** kappa
     return np.where(wrapped < np.pi, area * pressure * ds, 0.0)
 
 

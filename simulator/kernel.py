@@ -33,7 +33,7 @@ from simulator.angle_grid import (
     STEPS_PER_SPEED_SAMPLE,
     STEPS_PER_STROKE,
 )
-from simulator.chirp import test_torque
+from simulator.chirp import requested_test_torque
 from simulator.couplings import (
     backlash_torque,
     backlash_update,
@@ -128,7 +128,7 @@ def run_plant(
     backlash = 0.0
     held = np.full(N_CYL, t_loss)
     integral = min(max(t_loss / gain, u_min), u_max)
-    request = integral + test_torque(0.0, schedule, request_period)
+    request = integral + requested_test_torque(0.0, schedule, request_period)
     window = np.full(N_WIN, w_set)
     window_sum = N_WIN * w_set
     window_pos = 0
@@ -164,7 +164,7 @@ def run_plant(
             else:
                 command = integral
             t_control = t
-            request = command + test_torque(t, schedule, request_period)
+            request = command + requested_test_torque(t, schedule, request_period)
             out_speed[n_speed, 0] = t
             out_speed[n_speed, 1] = measured
             out_speed[n_speed, 2] = request

@@ -2,8 +2,8 @@
 
 The names follow the paper's eq. (6): three inertias J1 (engine side), J2 (dual-mass-flywheel
 secondary side) and J3 (clutch disc and gearbox input in neutral), the DMF arc spring c12/d12 with
-Coulomb friction Tc12 and free play eps12, the clutch/gear coupling c23/d23 with gear play eps23, the
-constant loss torque T_loss on J1 and the engine gain K (eq. 3 and 24). Free plays are *total*
+Coulomb friction Tc12 and free play eps12, the clutch/gear coupling c23/d23 with gear play eps23,
+the constant loss torque T_loss on J1 and the engine gain K (eq. 3 and 24). Free plays are *total*
 widths: the coupling is free for -eps/2 < delta < +eps/2.
 
 Parameter sets load from TOML files holding exactly these twelve keys (see

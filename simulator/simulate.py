@@ -14,7 +14,7 @@ import numpy as np
 
 from dtid.errors import AnalysisError, ConfigError
 from simulator.angle_grid import RPM_PER_RAD_S, STEP_RAD, STEPS_PER_SPEED_SAMPLE, STEPS_PER_STROKE
-from simulator.chirp import TestPlan, test_torque
+from simulator.chirp import TestPlan, requested_test_torque
 from simulator.controller import IdleController
 from simulator.engine import EngineGeometry, EngineTables, engine_tables
 from simulator.kernel import (
@@ -43,7 +43,8 @@ class SimulationOptions:
     Attributes
     ----------
     pulsation
-        Include the angle-periodic engine torque of eqs. (2), (4), (5); False leaves the mean torque.
+        Include the angle-periodic engine torque of eqs. (2), (4), (5); False keeps the mean
+        torque of each stroke only.
     combustion_variation
         Relative standard deviation of each stroke's mean torque, 1.
     speed_noise_rpm
@@ -153,7 +154,7 @@ def test_requests(plan: TestPlan) -> tuple[np.ndarray, np.ndarray]:
     """The tool's test-torque requests over the whole test: times, s, and values, N*m."""
     times = np.arange(0.0, plan.end_s, plan.request_period_s)
     schedule = plan.schedule()
-    values = np.array([test_torque(t, schedule, plan.request_period_s) for t in times])
+    values = np.array([requested_test_torque(t, schedule, plan.request_period_s) for t in times])
     return times, values
 
 

@@ -1,0 +1,26 @@
+"""Shared fixtures: simulated tests of the reference vehicle, computed once per session."""
+
+from __future__ import annotations
+
+import pytest
+
+from identification.testdata import TestData, from_simulation
+from simulator.chirp import TestPlan
+from simulator.parameters import DrivetrainParameters, reference_parameters
+from simulator.simulate import SimulationOptions, SimulationResult, simulate
+
+
+@pytest.fixture(scope="session")
+def reference() -> DrivetrainParameters:
+    return reference_parameters()
+
+
+@pytest.fixture(scope="session")
+def reference_test(reference: DrivetrainParameters) -> SimulationResult:
+    """The default three-amplitude test with realistic noise, seed 1."""
+    return simulate(reference, TestPlan(), SimulationOptions(), seed=1)
+
+
+@pytest.fixture(scope="session")
+def reference_data(reference_test: SimulationResult) -> TestData:
+    return from_simulation(reference_test)

@@ -1,0 +1,90 @@
+"""FRF pipeline: run detection, sensor responses and the errors a user sees."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from dtid.errors import AnalysisError
+from identification.frf import estimate_frf
+from identification.runs import find_runs
+from identification.sensor_response import speed_filter_gain, torque_hold_gain
+from identification.testdata import Series, TestData
+from simulator.angle_grid import N_WIN, step_time
+from simulator.chirp import TestPlan, requested_test_torque
+
+
+def test_runs_found_with_their_chirp_parameters() -> None:
+    plan = TestPlan(amplitudes_nm=(2.0, 10.0), f1_hz=1.5, f2_hz=12.0, duration_s=30.0)
+    t = np.arange(0.0, plan.end_s, plan.request_period_s)
+    value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
+    runs = find_runs(Series(t, value))
+    assert [r.amplitude_nm for r in runs] == pytest.approx([2.0, 10.0], rel=1e-3)
+    for run, chirp in zip(runs, plan.chirps, strict=True):
+        assert run.start_s == pytest.approx(chirp.start_s, abs=0.02)
+        assert run.end_s == pytest.approx(chirp.end_s, abs=0.02)
+        assert run.f1_hz == pytest.approx(1.5, abs=0.05)
+        assert run.f2_hz == pytest.approx(12.0, abs=0.05)
+
+
+def test_no_runs_without_test_torque() -> None:
+    t = np.linspace(0, 10, 1001)
+    assert find_runs(Series(t, np.zeros_like(t))) == []
+
+
+def test_speed_filter_gain_is_a_moving_average() -> None:
+    """Eq. (9) against scipy's response of the 30-tap moving average at the step time."""
+    n_rpm = 950.0
+    ts = step_time(n_rpm)
+    f = np.linspace(0.2, 60.0, 300)
+    _, h = signal.freqz(np.ones(N_WIN) / N_WIN, worN=f, fs=1 / ts)
+    np.testing.assert_allclose(speed_filter_gain(f, n_rpm), np.abs(h) * 30 / np.pi, rtol=1e-9)
+    # the firing frequency (second order) is removed
+    firing_hz = 2 * n_rpm / 60
+    assert speed_filter_gain(np.array([firing_hz]), n_rpm)[0] < 1e-9
+
+
+def test_torque_hold_gain_is_a_two_sample_hold() -> None:
+    n_rpm = 1000.0
+    f = np.linspace(0.2, 30.0, 100)
+    _, h = signal.freqz([0.5, 0.5], worN=f, fs=1 / (15 * step_time(n_rpm)))
+    np.testing.assert_allclose(torque_hold_gain(f, n_rpm), np.abs(h), rtol=1e-9)
+
+
+def _data(duration_s: float, gap_at: float | None = None) -> TestData:
+    plan = TestPlan(amplitudes_nm=(5.0,), duration_s=duration_s)
+    t = np.arange(0.0, plan.end_s, plan.request_period_s)
+    z = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
+    ts = np.arange(0.0, plan.end_s, 0.015)
+    if gap_at is not None:
+        ts = ts[(ts < gap_at) | (ts > gap_at + 0.5)]
+    y = 1000 + np.interp(ts, t, z)
+    return TestData(Series(ts, y), Series(ts[::2], np.interp(ts[::2], t, z)), Series(t, z))
+
+
+def test_a_chirp_too_short_for_the_resolution_is_refused() -> None:
+    data = _data(5.0)
+    run = find_runs(data.test_torque)[0]
+    with pytest.raises(AnalysisError, match=r"too short for a 0\.25 Hz resolution"):
+        estimate_frf(data, run)
+    estimate_frf(data, run, resolution_hz=1.0)  # coarser resolution: fine
+
+
+def test_a_gap_in_the_speed_is_refused() -> None:
+    data = _data(20.0, gap_at=10.0)
+    with pytest.raises(AnalysisError, match=r"0\.525 s gap"):
+        estimate_frf(data, find_runs(data.test_torque)[0])
+
+
+def test_a_band_outside_the_sweep_is_refused() -> None:
+    data = _data(20.0)
+    with pytest.raises(AnalysisError, match="not inside the chirp's sweep"):
+        estimate_frf(data, find_runs(data.test_torque)[0], band_hz=(0.2, 10.0))
+
+
+def test_engine_gain_is_recovered(reference_data: TestData) -> None:
+    """Eq. (24): K = mean |G_ENG| recovers the simulated calibration factor."""
+    for run in find_runs(reference_data.test_torque):
+        frf = estimate_frf(reference_data, run)
+        assert frf.engine_gain == pytest.approx(0.9, rel=0.03)
