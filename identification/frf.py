@@ -154,7 +154,9 @@ def estimate_frf(
         )
     rate = 1.0 / interval
     nperseg = round(rate / resolution_hz)
-    grid = np.arange(speed.t[0], speed.t[-1], interval)
+    # mid-way between samples: the crank-synchronous frames share instants (a stroke ends on a
+    # speed sample), so a grid on those instants would make the hold depend on timestamp rounding
+    grid = np.arange(speed.t[0] + 0.5 * interval, speed.t[-1], interval)
     if len(grid) < MIN_SEGMENTS * nperseg:
         raise AnalysisError(
             f"chirp run at {run.start_s:.1f}-{run.end_s:.1f} s lasts {run.duration_s:.1f} s, too "

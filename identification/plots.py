@@ -14,8 +14,8 @@ import numpy as np
 from dtid.errors import RecordingError
 from identification.frf import FrfEstimate
 
-COHERENCE_FLOOR = 0.9
-"""Bins below this coherence are drawn faint: the estimate there is not to be trusted."""
+COHERENCE_FLOOR = 0.7
+"""Bins below this coherence are drawn faint: noise makes up a third or more of the response."""
 
 
 def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = "") -> Path:
@@ -58,7 +58,7 @@ def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = ""
         ax_coh.plot(f, estimate.coherence, color=colour)
     ax_drv.set_ylabel("|G_DRV| / dB re 1 (rad/s)/(N*m)")
     ax_drv.legend(loc="lower left", fontsize="small")
-    ax_drv.set_title(title or "Drivetrain frequency response (faint: coherence < 0.9)")
+    ax_drv.set_title(title or "Drivetrain frequency response (faint: coherence < 0.7)")
     ax_eng.set_ylabel("|G_ENG| / dB")
     ax_coh.set_ylabel("coherence")
     ax_coh.set_ylim(0, 1.05)

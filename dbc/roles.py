@@ -1,0 +1,30 @@
+"""The roles of a signal map: the quantities the analysis reads from or writes to the CAN bus."""
+
+from collections.abc import Mapping
+from types import MappingProxyType
+
+#: Every role a signal map may define, in the order they are reported.
+ROLES: tuple[str, ...] = ("speed", "mean_torque", "test_torque", "torque_request", "heartbeat")
+#: Roles the analysis commands need.
+REQUIRED_ROLES: tuple[str, ...] = ("speed", "mean_torque", "test_torque")
+#: Canonical unit of each role's values; the heartbeat carries a raw state number.
+CANONICAL_UNITS: Mapping[str, str | None] = MappingProxyType(
+    {
+        "speed": "rpm",
+        "mean_torque": "N*m",
+        "test_torque": "N*m",
+        "torque_request": "N*m",
+        "heartbeat": None,
+    }
+)
+#: Keys naming further signals of the role's message, per role. ``counter`` is the message's
+#: rolling counter (for speed: the crank event counter, for the test torque: the alive counter).
+EXTRA_SIGNAL_KEYS: Mapping[str, tuple[str, ...]] = MappingProxyType(
+    {
+        "speed": ("counter",),
+        "mean_torque": ("cylinder", "counter"),
+        "test_torque": ("counter", "enable", "checksum"),
+        "torque_request": ("counter",),
+        "heartbeat": ("counter",),
+    }
+)

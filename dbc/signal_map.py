@@ -1,0 +1,278 @@
+"""Signal maps: which DBC signal carries each quantity the analysis needs.
+
+A signal map is a TOML file with one table per *role*::
+
+    [speed]           # filtered engine speed, rpm
+    message = "EngineSpeed"
+    signal = "EngineSpeedFiltered"
+    counter = "CrankEventCounter"   # optional
+
+Roles and their optional keys (besides the required ``message`` and ``signal``):
+
+==================  ===========  ===============================================
+role                canonical    optional keys
+==================  ===========  ===============================================
+``speed``           rpm          ``unit``, ``scale``, ``counter``
+``mean_torque``     N*m          ``unit``, ``scale``, ``cylinder``
+``test_torque``     N*m          ``unit``, ``scale``, ``counter``, ``enable``, ``checksum``
+``torque_request``  N*m          ``unit``, ``scale``
+``heartbeat``       (raw state)  none
+==================  ===========  ===============================================
+
+``counter``, ``cylinder``, ``enable`` and ``checksum`` name further signals of the same message.
+``unit`` is the unit of the decoded signal after ``scale`` when it differs from the canonical one,
+and ``scale`` a factor applied after decoding (for a torque in % of a 450 N*m reference,
+``scale = 4.5``): ``canonical = unit_convert(decoded * scale, unit)``.
+
+``speed``, ``mean_torque`` and ``test_torque`` are needed by the analysis commands; a map may lack
+them (``inspect`` reports what is missing), and :meth:`SignalMap.require` raises a clear error
+when a command needs a role that is not mapped.
+"""
+
+import difflib
+import math
+import os
+import tomllib
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from cantools.database.can import Database
+
+from dbc.interface import VehicleInterface
+from dbc.roles import CANONICAL_UNITS, EXTRA_SIGNAL_KEYS, REQUIRED_ROLES, ROLES
+from dtid.errors import ConfigError
+
+# Factor from each accepted unit to the canonical unit, per canonical unit.
+_UNIT_FACTORS: Mapping[str, Mapping[str, float]] = MappingProxyType(
+    {
+        "rpm": MappingProxyType({"rpm": 1.0, "rad/s": 60.0 / (2.0 * math.pi)}),
+        "N*m": MappingProxyType({"N*m": 1.0}),
+    }
+)
+_NAME_KEYS = ("message", "signal")
+
+
+@dataclass(frozen=True)
+class RoleSpec:
+    """Where one role is found in the DBC and how its values convert to the canonical unit.
+
+    Attributes
+    ----------
+    role : str
+        The role, one of :data:`ROLES`.
+    message : str
+        Name of the DBC message.
+    signal : str
+        Name of the signal carrying the role's value.
+    unit : str or None
+        Unit of ``decoded * scale``; the canonical unit unless the map says otherwise, None for
+        the heartbeat.
+    scale : float
+        Factor applied to the decoded signal value, > 0.
+    counter, cylinder, enable, checksum : str or None
+        Names of further signals of the same message, where the map names them.
+    """
+
+    role: str
+    message: str
+    signal: str
+    unit: str | None
+    scale: float = 1.0
+    counter: str | None = None
+    cylinder: str | None = None
+    enable: str | None = None
+    checksum: str | None = None
+
+    @property
+    def canonical_unit(self) -> str | None:
+        """Unit of the role's decoded values: rpm, N*m, or None for the heartbeat's raw state."""
+        return CANONICAL_UNITS[self.role]
+
+    @property
+    def gain(self) -> float:
+        """Canonical value per unit of decoded signal value (scale times unit conversion)."""
+        if self.canonical_unit is None or self.unit is None:
+            return self.scale
+        return self.scale * _UNIT_FACTORS[self.canonical_unit][self.unit]
+
+    def extra_signals(self) -> dict[str, str]:
+        """Return the further signals the map names, as ``{key: signal name}``."""
+        names = {key: getattr(self, key) for key in EXTRA_SIGNAL_KEYS[self.role]}
+        return {key: name for key, name in names.items() if name is not None}
+
+
+@dataclass(frozen=True)
+class SignalMap:
+    """A loaded signal map.
+
+    Attributes
+    ----------
+    source : pathlib.Path
+        The file the map was loaded from (used in messages).
+    roles : Mapping[str, RoleSpec]
+        The mapped roles, read-only.
+    """
+
+    source: Path
+    roles: Mapping[str, RoleSpec]
+
+    def present_roles(self) -> tuple[str, ...]:
+        """Return the mapped roles, in the order of :data:`ROLES`."""
+        return tuple(role for role in ROLES if role in self.roles)
+
+    def missing_roles(self, required: Iterable[str] = REQUIRED_ROLES) -> tuple[str, ...]:
+        """Return the roles of ``required`` that the map lacks."""
+        return tuple(role for role in required if role not in self.roles)
+
+    def require(self, *roles: str) -> None:
+        """Check that the map defines the given roles (default: :data:`REQUIRED_ROLES`).
+
+        Raises
+        ------
+        ConfigError
+            Naming the missing roles and how to add them.
+        """
+        missing = self.missing_roles(roles or REQUIRED_ROLES)
+        if missing:
+            names = ", ".join(f"'{role}'" for role in missing)
+            raise ConfigError(
+                f"signal map {self.source} lacks role {names} which this command needs; add a "
+                f'[{missing[0]}] table with message = "<message>" and signal = "<signal>"'
+            )
+
+    def bind(
+        self, database: Database, dbc_source: str | os.PathLike[str] | None = None
+    ) -> VehicleInterface:
+        """Bind the map to a CAN database.
+
+        Parameters
+        ----------
+        database : cantools.database.can.Database
+            The database, e.g. from :func:`dbc.load_database`.
+        dbc_source : str or os.PathLike, optional
+            The database's file, named in error messages.
+
+        Returns
+        -------
+        VehicleInterface
+            Decoder and encoder of the mapped roles.
+
+        Raises
+        ------
+        DbcError
+            If a mapped message or signal is not in the database.
+        """
+        return VehicleInterface(self, database, dbc_source)
+
+
+def _suggest(name: str, candidates: Iterable[str]) -> str:
+    close = difflib.get_close_matches(name, list(candidates), n=1)
+    return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def _type_name(value: object) -> str:
+    return {bool: "boolean", int: "integer", float: "number", str: "string"}.get(
+        type(value), "table" if isinstance(value, dict) else type(value).__name__
+    )
+
+
+def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
+    where = f"signal map {source}: role '{role}'"
+    extra_keys = EXTRA_SIGNAL_KEYS[role]
+    canonical = CANONICAL_UNITS[role]
+    allowed = _NAME_KEYS + (("unit", "scale") if canonical else ()) + extra_keys
+    for key in table:
+        if key not in allowed:
+            raise ConfigError(
+                f"{where} has unknown key '{key}'{_suggest(key, allowed)}; "
+                f"allowed keys are {', '.join(allowed)}"
+            )
+    for key in _NAME_KEYS:
+        if key not in table:
+            raise ConfigError(f"{where} lacks key '{key}'; add {key} = \"<{key} name in the DBC>\"")
+    names: dict[str, str] = {}
+    for key in _NAME_KEYS + extra_keys:
+        if key not in table:
+            continue
+        value = table[key]
+        if not isinstance(value, str) or not value.strip():
+            kind = "message" if key == "message" else "signal"
+            raise ConfigError(
+                f"{where} key '{key}' must be a non-empty string naming a DBC {kind}, "
+                f"got {_type_name(value)} {value!r}"
+            )
+        names[key] = value.strip()
+    unit = table.get("unit", canonical)
+    if canonical is not None:
+        accepted = _UNIT_FACTORS[canonical]
+        if not isinstance(unit, str) or unit not in accepted:
+            raise ConfigError(
+                f"{where} key 'unit' is {unit!r}, which is not a unit this role accepts; "
+                f"use one of {', '.join(repr(name) for name in accepted)}"
+            )
+    scale = table.get("scale", 1.0)
+    if isinstance(scale, bool) or not isinstance(scale, int | float):
+        raise ConfigError(
+            f"{where} key 'scale' must be a number, got {_type_name(scale)} {scale!r}; "
+            "write it without quotes, e.g. scale = 4.5"
+        )
+    if not math.isfinite(scale) or scale <= 0:
+        raise ConfigError(
+            f"{where} key 'scale' must be a finite number > 0, got {scale!r}; e.g. scale = 4.5 "
+            "for a torque in % of a 450 N*m reference"
+        )
+    return RoleSpec(role=role, unit=unit, scale=float(scale), **names)
+
+
+def load_signal_map(path: str | os.PathLike[str]) -> SignalMap:
+    """Load a signal map from a TOML file.
+
+    Maps that lack roles are accepted; see :meth:`SignalMap.require`.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The TOML file.
+
+    Returns
+    -------
+    SignalMap
+        The map.
+
+    Raises
+    ------
+    ConfigError
+        If the file is missing or unreadable, is not valid TOML, or holds an unknown role table, an
+        unknown key, a value of the wrong type, an unknown unit or a scale that is not a finite
+        number > 0; the message names the file, the role and the key.
+    """
+    source = Path(path)
+    try:
+        with source.open("rb") as file:
+            document = tomllib.load(file)
+    except FileNotFoundError as error:
+        raise ConfigError(f"signal map {source} does not exist") from error
+    except IsADirectoryError as error:
+        raise ConfigError(f"signal map {source} is a directory, not a TOML file") from error
+    except OSError as error:
+        raise ConfigError(f"cannot read signal map {source}: {error.strerror or error}") from error
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise ConfigError(f"signal map {source} is not valid TOML: {error}") from error
+    roles: dict[str, RoleSpec] = {}
+    for role, table in document.items():
+        if role not in ROLES:
+            raise ConfigError(
+                f"signal map {source}: unknown role [{role}]{_suggest(role, ROLES)}; "
+                f"the roles are {', '.join(ROLES)}"
+            )
+        if not isinstance(table, dict):
+            raise ConfigError(
+                f"signal map {source}: role '{role}' must be a table, got {_type_name(table)}; "
+                f'write it as [{role}] followed by message = "..." and signal = "..."'
+            )
+        roles[role] = _parse_role(source, role, table)
+    ordered = {role: roles[role] for role in ROLES if role in roles}
+    return SignalMap(source=source, roles=MappingProxyType(ordered))

@@ -1,0 +1,105 @@
+"""Read a CAN recording into the time series the FRF pipeline works on."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from acquisition.logfile import read_log
+from dbc.interface import RoleSeries, VehicleInterface
+from dtid.errors import AnalysisError
+from identification.testdata import Series, TestData
+
+TIME_DECIMALS = 6
+TIME_RESOLUTION_S = 10.0**-TIME_DECIMALS
+"""Resolution of recording times, s: what ASC and candump logs store (BLF stores ns)."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A decoded CAN recording.
+
+    Attributes
+    ----------
+    path
+        The file.
+    n_frames
+        Frames in the file.
+    duration_s
+        Time from its first to its last frame, s.
+    roles
+        Decoded series per mapped role, times in s from the recording's first frame.
+    missing_roles
+        Required roles the signal map does not define.
+    """
+
+    path: Path
+    n_frames: int
+    duration_s: float
+    roles: dict[str, RoleSeries]
+    missing_roles: tuple[str, ...]
+
+    def series(self, role: str) -> Series:
+        """The role's samples as a :class:`identification.testdata.Series`."""
+        decoded = self.roles[role]
+        return Series(decoded.timestamps, decoded.values)
+
+    def test_data(self) -> TestData:
+        """The signals of the FRF pipeline; raises AnalysisError naming what is missing."""
+        missing = [
+            role
+            for role in ("speed", "mean_torque", "test_torque")
+            if role not in self.roles or len(self.roles[role].timestamps) == 0
+        ]
+        if missing:
+            raise AnalysisError(
+                f"{self.path}: no {', '.join(missing)} frames found (check that the signal map "
+                "names the messages this recording carries; `dtid inspect` lists what it holds)"
+            )
+        request = self.roles.get("torque_request")
+        return TestData(
+            speed=self.series("speed"),
+            mean_torque=self.series("mean_torque"),
+            test_torque=self.series("test_torque"),
+            torque_request=self.series("torque_request")
+            if request is not None and len(request.timestamps) > 1
+            else None,
+        )
+
+
+def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) -> Recording:
+    """Read and decode a CAN recording (.blf, .asc or candump .log).
+
+    Times are made relative to the recording's first frame and rounded to
+    :data:`TIME_RESOLUTION_S`, so every format gives the same series whatever absolute start time
+    and precision it stores.
+
+    Raises
+    ------
+    RecordingError
+        If the file cannot be read.
+    """
+    path = Path(path)
+    frames = read_log(path)
+    start = frames[0].timestamp
+    decoded = interface.decode(frames)
+    roles = {
+        role: RoleSeries(
+            role=series.role,
+            timestamps=np.round(series.timestamps - start, TIME_DECIMALS),
+            values=series.values,
+            extra=series.extra,
+            n_bad=series.n_bad,
+        )
+        for role, series in decoded.items()
+    }
+    return Recording(
+        path=path,
+        n_frames=len(frames),
+        duration_s=frames[-1].timestamp - start,
+        roles=roles,
+        missing_roles=interface.missing_roles(),
+    )

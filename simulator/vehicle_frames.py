@@ -1,0 +1,89 @@
+"""The CAN frames a simulated test puts on the vehicle bus, encoded through a signal map.
+
+The engine ECU sends the filtered speed and the total torque request at every speed sample (pi/2
+of crank angle) and the mean torque at the end of every working stroke; the tool sends the test
+torque request every ``request_period_s`` (enabled during the chirps, with a 4-bit alive counter)
+and its heartbeat at 10 Hz. Timestamps are simulated test time. Every message goes through
+:meth:`dbc.VehicleInterface.encode`, so any DBC with a signal map receives the same test.
+"""
+
+from __future__ import annotations
+
+import can
+import numpy as np
+
+from dbc.interface import VehicleInterface
+from simulator.simulate import SimulationResult
+
+HEARTBEAT_PERIOD_S = 0.1
+"""Period of the tool's heartbeat, s."""
+TOOL_IDLE, TOOL_SETTLING, TOOL_CHIRP, TOOL_DONE = 0, 1, 2, 4
+"""Tool states of the heartbeat (the product DBC's VAL_ table)."""
+
+_COUNTER_MODULO = {"speed": 1 << 16, "test_torque": 16}
+"""Counter wrap per role (the product DBC's signal widths); 8 bits otherwise."""
+
+
+def _counter(role: str, index: int) -> int:
+    return index % _COUNTER_MODULO.get(role, 256)
+
+
+def _extras(interface: VehicleInterface, role: str, **values: int) -> dict[str, int]:
+    """Keep the extra signals the role's map entry names (another DBC may lack some)."""
+    spec = interface.signal_map.roles[role]
+    return {key: value for key, value in values.items() if getattr(spec, key, None)}
+
+
+def simulation_frames(result: SimulationResult, interface: VehicleInterface) -> list[can.Message]:
+    """Encode a simulated test as the frames of the vehicle bus, sorted by time.
+
+    Parameters
+    ----------
+    result
+        The simulated test.
+    interface
+        DBC and signal map to encode with; roles the map lacks are not sent.
+
+    Returns
+    -------
+    list of can.Message
+        Frames in time order.
+    """
+    present = set(interface.present_roles())
+    frames: list[can.Message] = []
+    if "speed" in present:
+        for i, (t, rpm) in enumerate(zip(result.speed_t, result.speed_rpm, strict=True)):
+            extras = _extras(interface, "speed", counter=_counter("speed", i))
+            frames.append(interface.encode("speed", rpm, t, **extras))
+    if "torque_request" in present:
+        for i, (t, nm) in enumerate(zip(result.speed_t, result.torque_request_nm, strict=True)):
+            extras = _extras(interface, "torque_request", counter=_counter("torque_request", i))
+            frames.append(interface.encode("torque_request", nm, t, **extras))
+    if "mean_torque" in present:
+        for i, (t, nm, cylinder) in enumerate(
+            zip(result.torque_t, result.mean_torque_nm, result.cylinder, strict=True)
+        ):
+            extras = _extras(
+                interface, "mean_torque", cylinder=int(cylinder), counter=_counter("mean", i)
+            )
+            frames.append(interface.encode("mean_torque", nm, t, **extras))
+    chirps = result.plan.chirps
+    if "test_torque" in present:
+        for i, (t, nm) in enumerate(zip(result.request_t, result.test_torque_nm, strict=True)):
+            enabled = int(any(c.start_s <= t < c.end_s for c in chirps))
+            extras = _extras(
+                interface, "test_torque", counter=_counter("test_torque", i), enable=enabled
+            )
+            frames.append(interface.encode("test_torque", nm, t, **extras))
+    if "heartbeat" in present:
+        for i, t in enumerate(np.arange(0.0, result.plan.end_s, HEARTBEAT_PERIOD_S)):
+            if any(c.start_s <= t < c.end_s for c in chirps):
+                state = TOOL_CHIRP
+            elif t >= chirps[-1].end_s:
+                state = TOOL_DONE
+            else:
+                state = TOOL_SETTLING
+            extras = _extras(interface, "heartbeat", counter=_counter("heartbeat", i))
+            frames.append(interface.encode("heartbeat", state, t, **extras))
+    frames.sort(key=lambda frame: frame.timestamp)
+    return frames

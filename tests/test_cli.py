@@ -1,0 +1,147 @@
+"""The ``dtid`` command line: contracts (JSON keys, exit codes) and the errors a user sees."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from dtid.cli import main
+
+DATA = Path(__file__).parent / "data"
+REALDATA = Path(__file__).parents[2] / "shared" / "realdata"
+SHORT = ["--amplitudes", "5", "10", "--duration", "12", "--seed", "2"]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("cli") / "test.blf"
+    assert main(["simulate", str(path), *SHORT]) == 0
+    return path
+
+
+def _error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("error: "), err
+    return err[0]
+
+
+def test_inspect_reports_roles_and_runs(recording: Path, tmp_path: Path) -> None:
+    out = tmp_path / "inspect.json"
+    assert main(["inspect", str(recording), "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    for role in ("speed", "mean_torque", "test_torque", "torque_request"):
+        assert set(report["roles"][role]) >= {"count", "rate_hz", "min", "max", "max_gap_s"}
+    assert report["roles"]["speed"]["rate_hz"] == pytest.approx(66.7, rel=0.02)
+    assert report["roles"]["mean_torque"]["rate_hz"] == pytest.approx(33.3, rel=0.02)
+    assert report["roles"]["test_torque"]["max_gap_s"] == pytest.approx(0.01, abs=1e-4)
+    runs = report["runs"]
+    assert [r["amplitude_nm"] for r in runs] == pytest.approx([5.0, 10.0])
+    for run in runs:
+        assert set(run) == {"start_s", "end_s", "amplitude_nm", "f1_hz", "f2_hz"}
+        assert run["f1_hz"] == pytest.approx(1.0, abs=0.05)
+        assert run["f2_hz"] == pytest.approx(15.0, abs=0.05)
+        assert run["end_s"] - run["start_s"] == pytest.approx(12.0, abs=0.05)
+
+
+def test_frf_json_and_plot(recording: Path, tmp_path: Path) -> None:
+    out, plot = tmp_path / "frf.json", tmp_path / "frf.png"
+    assert main(["frf", str(recording), "--json", str(out), "--plot", str(plot)]) == 0
+    runs = json.loads(out.read_text())["runs"]
+    assert len(runs) == 2
+    for entry in runs:
+        assert {"amplitude_nm", "frequency_hz", "drv_db", "eng_db", "coherence"} <= set(entry)
+        n = len(entry["frequency_hz"])
+        assert n > 10 and len(entry["drv_db"]) == n == len(entry["coherence"])
+    assert plot.stat().st_size > 10_000
+
+
+def test_simulate_never_overwrites_a_recording(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    before = recording.read_bytes()
+    message = _error(capsys, ["simulate", str(recording), *SHORT])
+    assert "--force" in message
+    assert recording.read_bytes() == before
+
+
+def test_simulate_through_another_dbc(tmp_path: Path) -> None:
+    path = tmp_path / "other.asc"
+    interface = ["--dbc", str(DATA / "other_vehicle.dbc")]
+    signals = ["--signals", str(DATA / "other_vehicle_signals.toml")]
+    assert main(["simulate", str(path), *SHORT, *interface, *signals]) == 0
+    assert main(["frf", str(path), *interface, *signals]) == 0
+
+
+def test_truncated_recording(recording: Path, tmp_path: Path,
+                             capsys: pytest.CaptureFixture[str]) -> None:
+    broken = tmp_path / "broken.blf"
+    broken.write_bytes(recording.read_bytes()[:100])
+    assert "broken.blf" in _error(capsys, ["frf", str(broken)])
+
+
+def test_unreadable_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    garbage = tmp_path / "garbage.log"
+    garbage.write_bytes(bytes(range(256)) * 4)
+    assert "garbage.log" in _error(capsys, ["inspect", str(garbage)])
+    assert "does not exist" in _error(capsys, ["frf", str(tmp_path / "missing.blf")])
+
+
+def test_dbc_without_the_mapped_message(recording: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:
+    message = _error(capsys, ["frf", str(recording), "--dbc", str(DATA / "other_vehicle.dbc")])
+    assert "EngineSpeed" in message and "--signals" in message
+
+
+def test_map_naming_an_unknown_signal(recording: Path, tmp_path: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.toml"
+    text = (DATA / "other_vehicle_signals.toml").read_text()
+    bad.write_text(text.replace('"CrankSpeed"', '"CrankSped"'))
+    message = _error(capsys, ["inspect", str(recording), "--dbc",
+                              str(DATA / "other_vehicle.dbc"), "--signals", str(bad)])
+    assert "CrankSped" in message and "CrankSpeed" in message
+
+
+def test_recording_without_chirp(tmp_path: Path, recording: Path,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    from acquisition.logfile import read_log, write_log
+
+    quiet = tmp_path / "quiet.blf"
+    write_log(quiet, [f for f in read_log(recording) if f.timestamp < 2.5])
+    assert "no chirp" in _error(capsys, ["frf", str(quiet)])
+    assert main(["inspect", str(quiet)]) == 0  # inspect reports, it does not refuse
+
+
+def test_chirp_too_short_for_the_band(recording: Path,
+                                      capsys: pytest.CaptureFixture[str]) -> None:
+    message = _error(capsys, ["frf", str(recording), "--resolution", "0.1"])
+    assert "too short" in message
+    message = _error(capsys, ["frf", str(recording), "--band", "0.2", "14"])
+    assert "not inside the chirp's sweep" in message
+
+
+def test_bad_parameter_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    params = tmp_path / "vehicle.toml"
+    shutil.copy(Path(__file__).parents[1] / "simulator" / "reference_vehicle.toml", params)
+    params.write_text(params.read_text().replace("J2 = 0.09", "J2 = -0.09"))
+    message = _error(capsys, ["simulate", str(tmp_path / "x.blf"), "--params", str(params)])
+    assert "J2 = -0.09 is not physical" in message
+
+
+@pytest.mark.skipif(not REALDATA.is_dir(), reason="shared/realdata is not present")
+def test_inspect_a_real_log_through_an_example_map(tmp_path: Path) -> None:
+    out = tmp_path / "genesis.json"
+    maps = Path(__file__).parents[1] / "dbc" / "maps"
+    assert main([
+        "inspect", str(REALDATA / "genesis_autolog.log"),
+        "--dbc", str(REALDATA / "opendbc_hyundai_kia_generic.dbc"),
+        "--signals", str(maps / "opendbc_hyundai_kia_generic.toml"), "--json", str(out),
+    ]) == 0
+    report = json.loads(out.read_text())
+    assert report["roles"]["speed"]["count"] == 3645
+    assert 750 <= report["roles"]["speed"]["min"] < report["roles"]["speed"]["max"] <= 2050
+    assert report["missing_roles"] == ["test_torque"] and report["runs"] == []

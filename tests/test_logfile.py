@@ -1,0 +1,255 @@
+"""Tests of CAN recording files: round trip per format, timestamps, overwrite and damaged files."""
+
+import logging
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+
+from acquisition.logfile import SUPPORTED_SUFFIXES, read_log, write_log
+from dtid.errors import RecordingError
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+FORMATS = [".blf", ".asc", ".log"]
+# Timestamp error relative to the first frame measured with python-can 4.6, s.
+TIME_RESOLUTION = {".blf": 1e-8, ".asc": 1e-6, ".log": 1e-6}
+
+
+def make_frames(count=20000, start=0.0, seed=0):
+    """Frames over 200 s with standard and extended IDs and every classical DLC."""
+    rng = np.random.default_rng(seed)
+    times = start + np.sort(rng.uniform(0.0, 200.0, count))
+    times[0] = start
+    frames = []
+    for index, timestamp in enumerate(times):
+        extended = index % 5 == 0
+        frames.append(
+            can.Message(
+                timestamp=float(timestamp),
+                arbitration_id=int(rng.integers(0, 0x1FFFFFFF if extended else 0x7FF)),
+                is_extended_id=extended,
+                data=bytes(rng.integers(0, 256, index % 9, dtype=np.uint8)),
+            )
+        )
+    return frames
+
+
+def same_frames(read, written):
+    return [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in read] == [
+        (m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in written
+    ]
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return make_frames()
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory, frames):
+    """One complete recording per format, shared by the tests that damage copies of it."""
+    folder = tmp_path_factory.mktemp("recordings")
+    paths = {suffix: folder / f"complete{suffix}" for suffix in FORMATS}
+    for path in paths.values():
+        write_log(path, frames)
+    return paths
+
+
+def damaged_copy(tmp_path, source, data):
+    path = tmp_path / f"damaged{source.suffix}"
+    path.write_bytes(data)
+    return path
+
+
+@pytest.mark.parametrize("suffix", FORMATS)
+@pytest.mark.parametrize("start", [0.0, 1_700_000_000.0])
+def test_round_trip(tmp_path, suffix, start):
+    frames = make_frames(start=start, seed=1)
+    path = tmp_path / f"recording{suffix}"
+    assert write_log(path, frames) == len(frames)
+    read = read_log(path)
+    assert same_frames(read, frames)
+    assert [m.dlc for m in read] == [m.dlc for m in frames]
+    times = np.array([m.timestamp for m in read])
+    expected = np.array([m.timestamp for m in frames])
+    error = np.abs((times - times[0]) - (expected - expected[0]))
+    assert error.max() <= TIME_RESOLUTION[suffix]
+    if start == 0.0:  # a simulated recording comes back starting at t = 0
+        assert abs(times[0]) <= TIME_RESOLUTION[suffix]
+
+
+def test_frames_are_written_in_time_order(tmp_path):
+    frames = make_frames(count=100)
+    path = tmp_path / "shuffled.log"
+    write_log(path, frames[::-1])
+    assert same_frames(read_log(path), frames)
+
+
+@pytest.mark.parametrize("suffix", FORMATS)
+def test_existing_file_is_never_overwritten(tmp_path, suffix):
+    path = tmp_path / f"recording{suffix}"
+    first, second = make_frames(count=50, seed=2), make_frames(count=60, seed=3)
+    write_log(path, first)
+    content = path.read_bytes()
+    with pytest.raises(RecordingError, match=r"recording .* already exists; .*--force"):
+        write_log(path, second)
+    assert path.read_bytes() == content
+    write_log(path, second, overwrite=True)
+    assert same_frames(read_log(path), second)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [path.name]
+
+
+def test_failed_write_leaves_nothing_behind(tmp_path, monkeypatch):
+    with pytest.raises(RecordingError, match=r"cannot write recording .*missing"):
+        write_log(tmp_path / "missing" / "recording.blf", make_frames(count=5))
+    path = tmp_path / "recording.blf"
+    write_log(path, make_frames(count=5))
+    content = path.read_bytes()
+
+    def disk_full(writer, message):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(can.BLFWriter, "on_message_received", disk_full)
+    with pytest.raises(RecordingError, match=r"cannot write recording .*No space left on device"):
+        write_log(tmp_path / "new.blf", make_frames(count=5))
+    with pytest.raises(RecordingError, match="No space left on device"):
+        write_log(path, make_frames(count=5, seed=5), overwrite=True)
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]
+    assert path.read_bytes() == content
+
+
+def test_write_errors(tmp_path):
+    with pytest.raises(RecordingError, match="no CAN frames to write"):
+        write_log(tmp_path / "empty.blf", [])
+    with pytest.raises(
+        RecordingError, match=r"unsupported format '.csv'; supported suffixes are .asc, .blf, .log"
+    ):
+        write_log(tmp_path / "recording.csv", make_frames(count=5))
+    assert SUPPORTED_SUFFIXES == (".asc", ".blf", ".log")
+
+
+def test_read_errors(tmp_path):
+    with pytest.raises(RecordingError, match=r"recording .*missing.blf does not exist"):
+        read_log(tmp_path / "missing.blf")
+    with pytest.raises(RecordingError, match=r"supported suffixes are \.asc, \.blf, \.log"):
+        read_log(tmp_path / "recording.mf4")
+    folder = tmp_path / "folder.log"
+    folder.mkdir()
+    with pytest.raises(RecordingError, match="is a directory"):
+        read_log(folder)
+
+
+@pytest.mark.parametrize(
+    ("name", "content"),
+    [
+        ("empty.log", b""),
+        ("blank.log", b"\n\n"),
+        ("header.asc", b"date Mon Jan 1 00:00:00.000 2024\nbase hex  timestamps absolute\n"),
+    ],
+)
+def test_file_without_frames(tmp_path, name, content):
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(RecordingError, match="holds no CAN frames"):
+        read_log(path)
+
+
+# --- damaged files ------------------------------------------------------------------------------
+
+
+def test_blf_cut_in_the_middle_reads_frames_before_the_cut(tmp_path, written, frames, caplog):
+    data = written[".blf"].read_bytes()
+    for cut in (len(data) // 2, len(data) - 1):
+        with caplog.at_level(logging.WARNING):
+            read = read_log(damaged_copy(tmp_path, written[".blf"], data[:cut]))
+        assert 0 < len(read) <= len(frames) and same_frames(read, frames[: len(read)])
+        assert f"is cut short ({cut} of {len(data)} bytes)" in caplog.text
+    assert len(read) == len(frames)  # only padding was cut
+
+
+@pytest.mark.parametrize(("cut", "match"), [(40, "broken header"), (200, "no complete CAN frame")])
+def test_blf_cut_before_the_first_frame(tmp_path, written, cut, match):
+    data = written[".blf"].read_bytes()
+    with pytest.raises(RecordingError, match=match):
+        read_log(damaged_copy(tmp_path, written[".blf"], data[:cut]))
+
+
+def test_blf_never_closed_is_read_with_warning(tmp_path, frames, caplog):
+    path = tmp_path / "crashed.blf"
+    writer = can.BLFWriter(path)
+    for frame in frames:
+        writer.on_message_received(frame)
+    writer.file.flush()  # the process dies here: containers on disk, header never completed
+    data = path.read_bytes()
+    writer.stop()
+    with caplog.at_level(logging.WARNING):
+        read = read_log(damaged_copy(tmp_path, path, data))
+    assert 0 < len(read) < len(frames) and same_frames(read, frames[: len(read)])
+    assert "was not closed by its writer" in caplog.text
+
+
+def test_blf_damaged_in_the_middle_is_an_error(tmp_path, written):
+    data = bytearray(written[".blf"].read_bytes())
+    data[len(data) // 2 : len(data) // 2 + 64] = bytes(range(64))
+    with pytest.raises(RecordingError, match=r"damaged\.blf is damaged after \d+ frames"):
+        read_log(damaged_copy(tmp_path, written[".blf"], bytes(data)))
+
+
+@pytest.mark.parametrize("suffix", FORMATS)
+def test_garbage_file_is_an_error(tmp_path, suffix):
+    path = tmp_path / f"garbage{suffix}"
+    path.write_bytes(np.random.default_rng(4).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    with pytest.raises(RecordingError, match=f"garbage{suffix}") as info:
+        read_log(path)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".log"])
+def test_text_log_cut_in_a_line_drops_that_line(tmp_path, written, frames, suffix, caplog):
+    data = written[suffix].read_bytes()
+    # line end of the last frame
+    end = len(data) - 1 if suffix == ".log" else data.rfind(b"\nEnd TriggerBlock")
+    for cut in (len(data) // 2, end - 6):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING):
+            read = read_log(damaged_copy(tmp_path, written[suffix], data[:cut]))
+        assert "ends in an incomplete line" in caplog.text
+        assert 0 < len(read) < len(frames) and same_frames(read, frames[: len(read)])
+    assert len(read) == len(frames) - 1
+
+
+def test_asc_without_end_of_triggerblock_warns(tmp_path, written, frames, caplog):
+    data = written[".asc"].read_bytes()
+    cut = data.rfind(b"End TriggerBlock")
+    with caplog.at_level(logging.WARNING):
+        read = read_log(damaged_copy(tmp_path, written[".asc"], data[:cut]))
+    assert len(read) == len(frames) and "lacks its closing 'End TriggerBlock'" in caplog.text
+
+
+@pytest.mark.parametrize("suffix", [".asc", ".log"])
+def test_text_log_with_binary_bytes_is_an_error(tmp_path, written, suffix):
+    data = written[suffix].read_bytes()
+    middle = data.find(b"\n", len(data) // 2) + 1
+    damaged = data[:middle] + b"\x00\x17\x80garbage\n" + data[middle:]
+    with pytest.raises(RecordingError, match=r"holds binary data in line \d+"):
+        read_log(damaged_copy(tmp_path, written[suffix], damaged))
+
+
+def test_candump_with_malformed_line_is_an_error(tmp_path, written):
+    data = written[".log"].read_bytes()
+    middle = data.find(b"\n", len(data) // 2) + 1
+    damaged = data[:middle] + b"(12.5) can0 this is not a frame\n" + data[middle:]
+    with pytest.raises(RecordingError, match=r"cannot be parsed after \d+ frames"):
+        read_log(damaged_copy(tmp_path, written[".log"], damaged))
+
+
+def test_real_candump_log(tmp_path):
+    if not REALDATA.is_dir():
+        pytest.skip(f"third-party CAN data not present in {REALDATA}")
+    frames = read_log(REALDATA / "genesis_autolog.log")
+    assert len(frames) == 55314 and not any(frame.is_extended_id for frame in frames)
+    assert frames[0].timestamp == pytest.approx(1600279140.020108)
+    path = tmp_path / "genesis.blf"
+    write_log(path, frames)
+    assert same_frames(read_log(path), frames)
