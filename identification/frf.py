@@ -1,9 +1,15 @@
 """Closed-loop frequency responses of one chirp run, paper eqs. (12)-(15).
 
-Per run, all signals are brought onto one uniform time grid at the speed's sample rate (the
-filtered speed by cubic-spline interpolation, which is smooth after the sensor's moving average;
-the mean torque, the torque request and the test torque by holding the last value, which is what
-the ECU and eq. (10) assume). Welch-averaged cross-spectra with the test torque z then give
+Per run, the analysis works on the crank-event grid, as the paper does: the filtered speed's own
+samples (every pi/2 of crank angle, uniform in angle and nearly uniform in time at idle), with
+the mean torque, the torque request and the test torque request taken as the ECU holds them at
+each event (the last value received). The test torque is then exactly the value the ECU added to
+its request, the mean torque is held over L = 2 events as eq. (10) assumes, and no signal is
+interpolated. A speed wandering by a few per cent smears a frequency by as much, well within a
+Welch bin; resampling to a uniform time grid instead would turn the same wander into a jitter of
+up to one event between the test torque and the torque it caused, which costs coherence. Missing
+speed events (lost frames, up to ``MAX_GAP_SAMPLES`` in a row) are filled by cubic-spline
+interpolation in time. Welch-averaged cross-spectra with the test torque z then give
 
 * G = S_zy / S_zx, the plant seen from the measured mean torque x to the measured speed y (eq. 13),
 * |G_DRV| = |G| |G_p| / |G_n| (eq. 14), (rad/s)/(N*m),
@@ -100,6 +106,19 @@ def _hold(series: Series, grid: np.ndarray) -> np.ndarray:
     return series.value[np.clip(index, 0, len(series) - 1)]
 
 
+def _event_grid(times: np.ndarray, interval: float) -> np.ndarray:
+    """The speed's event times with any missing events (gaps of 1.5 intervals or more) filled."""
+    gaps = np.diff(times)
+    missing = np.rint(gaps / interval).astype(np.int64) - 1
+    if not np.any(missing > 0):
+        return times
+    pieces = [times[:1]]
+    for start, gap, extra in zip(times[:-1], gaps, missing, strict=True):
+        step = gap / (extra + 1)
+        pieces.append(start + step * np.arange(1, extra + 2))
+    return np.concatenate(pieces)
+
+
 def _unique_times(series: Series) -> Series:
     """Drop samples whose timestamp repeats the previous one (duplicated frames)."""
     keep = np.concatenate(([True], np.diff(series.t) > 0))
@@ -154,9 +173,7 @@ def estimate_frf(
         )
     rate = 1.0 / interval
     nperseg = round(rate / resolution_hz)
-    # mid-way between samples: the crank-synchronous frames share instants (a stroke ends on a
-    # speed sample), so a grid on those instants would make the hold depend on timestamp rounding
-    grid = np.arange(speed.t[0] + 0.5 * interval, speed.t[-1], interval)
+    grid = _event_grid(speed.t, interval)
     if len(grid) < MIN_SEGMENTS * nperseg:
         raise AnalysisError(
             f"chirp run at {run.start_s:.1f}-{run.end_s:.1f} s lasts {run.duration_s:.1f} s, too "
@@ -179,7 +196,7 @@ def estimate_frf(
             f"mean torque sampled once per stroke at {speed_rpm:.0f} rpm"
         )
 
-    y = interpolate.CubicSpline(speed.t, speed.value)(grid)
+    y = speed.value if len(grid) == len(speed) else interpolate.CubicSpline(speed.t, speed.value)(grid)
     x = _hold(data.mean_torque, grid)
     z = _hold(data.test_torque, grid)
     welch = {"fs": rate, "nperseg": nperseg, "window": "hann", "detrend": "constant"}

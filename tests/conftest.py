@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from identification.testdata import TestData, from_simulation
 from simulator.chirp import TestPlan
 from simulator.parameters import DrivetrainParameters, reference_parameters
 from simulator.simulate import SimulationOptions, SimulationResult, simulate
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+"""Third-party DBCs and CAN logs beside the repository (never copied into it)."""
+
+
+@pytest.fixture
+def realdata() -> Path:
+    """The third-party data folder; skips the test when it is not present."""
+    if not REALDATA.is_dir():
+        pytest.skip(f"third-party CAN data not present in {REALDATA}")
+    return REALDATA
 
 
 @pytest.fixture(scope="session")

@@ -11,7 +11,6 @@ import pytest
 from dtid.cli import main
 
 DATA = Path(__file__).parent / "data"
-REALDATA = Path(__file__).parents[2] / "shared" / "realdata"
 SHORT = ["--amplitudes", "5", "10", "--duration", "12", "--seed", "2"]
 
 
@@ -132,13 +131,12 @@ def test_bad_parameter_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert "J2 = -0.09 is not physical" in message
 
 
-@pytest.mark.skipif(not REALDATA.is_dir(), reason="shared/realdata is not present")
-def test_inspect_a_real_log_through_an_example_map(tmp_path: Path) -> None:
+def test_inspect_a_real_log_through_an_example_map(tmp_path: Path, realdata: Path) -> None:
     out = tmp_path / "genesis.json"
     maps = Path(__file__).parents[1] / "dbc" / "maps"
     assert main([
-        "inspect", str(REALDATA / "genesis_autolog.log"),
-        "--dbc", str(REALDATA / "opendbc_hyundai_kia_generic.dbc"),
+        "inspect", str(realdata / "genesis_autolog.log"),
+        "--dbc", str(realdata / "opendbc_hyundai_kia_generic.dbc"),
         "--signals", str(maps / "opendbc_hyundai_kia_generic.toml"), "--json", str(out),
     ]) == 0
     report = json.loads(out.read_text())

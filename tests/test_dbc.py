@@ -22,8 +22,6 @@ from dbc import (
 )
 from dtid.errors import ConfigError, DbcError
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
-
 PRODUCT_MESSAGES = {
     "EngineSpeed": (0x1A0, "ECU"),
     "EngineMeanTorque": (0x1A1, "ECU"),
@@ -41,13 +39,6 @@ def database():
 @pytest.fixture(scope="module")
 def interface(database):
     return load_signal_map(DEFAULT_SIGNAL_MAP).bind(database, DEFAULT_DBC)
-
-
-@pytest.fixture
-def realdata():
-    if not REALDATA.is_dir():
-        pytest.skip(f"third-party CAN data not present in {REALDATA}")
-    return REALDATA
 
 
 def write_map(tmp_path, text, name="map.toml"):

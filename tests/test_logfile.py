@@ -1,7 +1,6 @@
 """Tests of CAN recording files: round trip per format, timestamps, overwrite and damaged files."""
 
 import logging
-from pathlib import Path
 
 import can
 import numpy as np
@@ -10,7 +9,6 @@ import pytest
 from acquisition.logfile import SUPPORTED_SUFFIXES, read_log, write_log
 from dtid.errors import RecordingError
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 FORMATS = [".blf", ".asc", ".log"]
 # Timestamp error relative to the first frame measured with python-can 4.6, s.
 TIME_RESOLUTION = {".blf": 1e-8, ".asc": 1e-6, ".log": 1e-6}
@@ -244,10 +242,8 @@ def test_candump_with_malformed_line_is_an_error(tmp_path, written):
         read_log(damaged_copy(tmp_path, written[".log"], damaged))
 
 
-def test_real_candump_log(tmp_path):
-    if not REALDATA.is_dir():
-        pytest.skip(f"third-party CAN data not present in {REALDATA}")
-    frames = read_log(REALDATA / "genesis_autolog.log")
+def test_real_candump_log(tmp_path, realdata):
+    frames = read_log(realdata / "genesis_autolog.log")
     assert len(frames) == 55314 and not any(frame.is_extended_id for frame in frames)
     assert frames[0].timestamp == pytest.approx(1600279140.020108)
     path = tmp_path / "genesis.blf"

@@ -36,20 +36,21 @@ def _linear(p: DrivetrainParameters) -> DrivetrainParameters:
 
 
 @pytest.mark.parametrize(
-    ("closed_loop", "duration_s"),
-    # Open loop the speed wanders with the chirp, so the Welch sweep-rate bias needs a slower
-    # sweep (measured max error: 2.4 dB at 60 s, 1.0 dB at 120 s, 0.5 dB at 240 s).
-    [(False, 240.0), (True, 120.0)],
+    ("closed_loop", "amplitude_nm"),
+    # A 120 s sweep keeps Welch's sweep-rate bias small (max error 0.75 dB at 60 s, 0.51 dB at
+    # 120 s). Open loop nothing holds the speed: at 10 N*m it wanders by 5 % and smears the
+    # crank-event frequency axis by as much, so the open-loop check uses a small amplitude.
+    [(False, 2.0), (True, 5.0)],
 )
 def test_linear_plant_matches_analytic_three_mass_frf(
-    reference: DrivetrainParameters, closed_loop: bool, duration_s: float
+    reference: DrivetrainParameters, closed_loop: bool, amplitude_nm: float
 ) -> None:
     """Free play, friction and pulsation off: G_DRV within 1 dB of eq. (6) where coherent."""
     p = _linear(reference)
     options = SimulationOptions.clean(
         pulsation=False, controller=IdleController(closed_loop=closed_loop)
     )
-    result = simulate(p, TestPlan(amplitudes_nm=(5.0,), duration_s=duration_s), options)
+    result = simulate(p, TestPlan(amplitudes_nm=(amplitude_nm,), duration_s=120.0), options)
     frf = _frf(result)
     # eq. (14) keeps the engine's hold of each stroke's torque (READING-NOTES, sensors)
     analytic = np.abs(three_mass_frf(p, frf.frequency_hz)) * stroke_hold_gain(
@@ -57,7 +58,7 @@ def test_linear_plant_matches_analytic_three_mass_frf(
     )
     error_db = frf.drv_db - 20 * np.log10(analytic)
     coherent = frf.coherence > 0.9
-    assert coherent.mean() > 0.7, "too few coherent bins for the comparison to mean anything"
+    assert coherent.mean() > 0.9, "too few coherent bins for the comparison to mean anything"
     assert np.abs(error_db[coherent]).max() < 1.0
     # the comparison is sharp: a 10 % error in J1 would be caught
     wrong = np.abs(three_mass_frf(p.replace(J1=1.1 * p.J1), frf.frequency_hz))
