@@ -196,7 +196,10 @@ def estimate_frf(
             f"mean torque sampled once per stroke at {speed_rpm:.0f} rpm"
         )
 
-    y = speed.value if len(grid) == len(speed) else interpolate.CubicSpline(speed.t, speed.value)(grid)
+    if len(grid) == len(speed):
+        y = speed.value
+    else:
+        y = interpolate.CubicSpline(speed.t, speed.value)(grid)
     x = _hold(data.mean_torque, grid)
     z = _hold(data.test_torque, grid)
     welch = {"fs": rate, "nperseg": nperseg, "window": "hann", "detrend": "constant"}

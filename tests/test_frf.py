@@ -88,3 +88,18 @@ def test_engine_gain_is_recovered(reference_data: TestData) -> None:
     for run in find_runs(reference_data.test_torque):
         frf = estimate_frf(reference_data, run)
         assert frf.engine_gain == pytest.approx(0.9, rel=0.03)
+
+
+def test_a_few_lost_speed_frames_are_filled(reference_data: TestData) -> None:
+    """Two lost speed frames in a row barely change the FRF (they are interpolated)."""
+    run = find_runs(reference_data.test_torque)[2]
+    full = estimate_frf(reference_data, run)
+    t, v = reference_data.speed.t, reference_data.speed.value
+    keep = np.ones(len(t), dtype=bool)
+    middle = np.searchsorted(t, 0.5 * (run.start_s + run.end_s))
+    keep[middle : middle + 2] = False
+    lossy = TestData(Series(t[keep], v[keep]), reference_data.mean_torque,
+                     reference_data.test_torque, reference_data.torque_request)
+    filled = estimate_frf(lossy, run)
+    np.testing.assert_array_equal(filled.frequency_hz, full.frequency_hz)
+    assert np.abs(filled.drv_db - full.drv_db).max() < 0.05
