@@ -182,8 +182,11 @@ def estimate_frf(
         )
     speed_rpm = float(np.mean(speed.value))
     torque_nyquist = 0.5 * rate / 2
-    lo, hi = band_hz or (run.f1_hz + 0.5 * resolution_hz, run.f2_hz - 0.5 * resolution_hz)
-    lo, hi = max(lo, 0.0), min(hi, 0.98 * torque_nyquist) if band_hz is None else hi
+    if band_hz is None:  # the sweep less half a bin at each end, clipped below the torque Nyquist
+        lo = run.f1_hz + 0.5 * resolution_hz
+        hi = min(run.f2_hz - 0.5 * resolution_hz, 0.98 * torque_nyquist)
+    else:
+        lo, hi = band_hz
     sweep_lo, sweep_hi = sorted((run.f1_hz, run.f2_hz))
     if lo < sweep_lo - 1e-6 or hi > sweep_hi + 1e-6 or hi <= lo:
         raise AnalysisError(

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.errors import AnalysisError
+from simulator.simulate import SimulationResult
 
 
 @dataclass(frozen=True)
@@ -59,11 +60,11 @@ class TestData:
                 raise AnalysisError(f"the recording holds fewer than 2 samples of {name}")
 
 
-def from_simulation(result: object) -> TestData:
-    """Build test data from a :class:`simulator.simulate.SimulationResult` (no CAN in between)."""
+def from_simulation(result: SimulationResult) -> TestData:
+    """Build test data from a simulated test directly (no CAN in between)."""
     return TestData(
-        speed=Series(result.speed_t, result.speed_rpm),  # type: ignore[attr-defined]
-        mean_torque=Series(result.torque_t, result.mean_torque_nm),  # type: ignore[attr-defined]
-        test_torque=Series(result.request_t, result.test_torque_nm),  # type: ignore[attr-defined]
-        torque_request=Series(result.speed_t, result.torque_request_nm),  # type: ignore[attr-defined]
+        speed=Series(result.speed_t, result.speed_rpm),
+        mean_torque=Series(result.torque_t, result.mean_torque_nm),
+        test_torque=Series(result.request_t, result.test_torque_nm),
+        torque_request=Series(result.speed_t, result.torque_request_nm),
     )

@@ -64,7 +64,7 @@ def simulation_frames(result: SimulationResult, interface: VehicleInterface) -> 
             zip(result.torque_t, result.mean_torque_nm, result.cylinder, strict=True)
         ):
             extras = _extras(
-                interface, "mean_torque", cylinder=int(cylinder), counter=_counter("mean", i)
+                interface, "mean_torque", cylinder=int(cylinder), counter=_counter("mean_torque", i)
             )
             frames.append(interface.encode("mean_torque", nm, t, **extras))
     chirps = result.plan.chirps
