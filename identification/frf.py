@@ -205,26 +205,62 @@ def estimate_frf(
         y = interpolate.CubicSpline(speed.t, speed.value)(grid)
     x = _hold(data.mean_torque, grid)
     z = _hold(data.test_torque, grid)
-    welch = {"fs": rate, "nperseg": nperseg, "window": "hann", "detrend": "constant"}
-    frequency, s_zy = signal.csd(z, y, **welch)
-    _, s_zx = signal.csd(z, x, **welch)
-    _, s_zz = signal.welch(z, **welch)
-    _, s_yy = signal.welch(y, **welch)
-    _, s_xx = signal.welch(x, **welch)
+    frequency, s_zy, s_zx = cross_spectra(z, y, x, rate, nperseg)
     keep = (frequency >= lo) & (frequency <= hi)
     if not np.any(keep):
         raise AnalysisError(f"no frequency bin of {resolution_hz} Hz lies in {lo:.2f}-{hi:.2f} Hz")
-    f = frequency[keep]
-    s_zy, s_zx, s_zz, s_yy, s_xx = s_zy[keep], s_zx[keep], s_zz[keep], s_yy[keep], s_xx[keep]
+    f, s_zy, s_zx = frequency[keep], s_zy[keep], s_zx[keep]
+    welch = _welch_settings(rate, nperseg)
+    s_zz, s_yy, s_xx = (signal.welch(v, **welch)[1][keep] for v in (z, y, x))
     coherence = np.minimum(
         np.abs(s_zy) ** 2 / (s_zz * s_yy), np.abs(s_zx) ** 2 / (s_zz * s_xx)
     )
-    hold = torque_hold_gain(f, speed_rpm)
-    drv = np.abs(s_zy / s_zx) * hold / speed_filter_gain(f, speed_rpm)
+    drv = drivetrain_magnitude(f, s_zy, s_zx, speed_rpm)
     if data.torque_request is not None and len(data.torque_request) > 1:
         u = _hold(data.torque_request, grid)
         _, s_zu = signal.csd(z, u, **welch)
-        eng = np.abs(s_zx / s_zu[keep]) / hold
+        eng = np.abs(s_zx / s_zu[keep]) / torque_hold_gain(f, speed_rpm)
     else:
         eng = np.full_like(f, np.nan)
     return FrfEstimate(run, f, drv, eng, coherence, speed_rpm, rate)
+
+
+def _welch_settings(rate: float, nperseg: int) -> dict[str, object]:
+    return {"fs": rate, "nperseg": nperseg, "window": "hann", "detrend": "constant"}
+
+
+def cross_spectra(
+    z: np.ndarray, y: np.ndarray, x: np.ndarray, rate: float, nperseg: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Welch cross-spectra S_zy and S_zx of crank-event signals, eqs. (12)-(13).
+
+    Parameters
+    ----------
+    z, y, x
+        Test torque (N*m), filtered speed (rpm) and mean torque (N*m) on the event grid; 1-D, or
+        2-D with one test per row (the model side of the identification).
+    rate
+        Event rate, Hz.
+    nperseg
+        Welch segment length, samples (Hann window, half overlap, mean removed per segment).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        Frequencies (Hz), S_zy and S_zx (complex, last axis over frequency).
+    """
+    welch = _welch_settings(rate, nperseg)
+    frequency, s_zy = signal.csd(z, y, **welch)
+    _, s_zx = signal.csd(z, x, **welch)
+    return frequency, s_zy, s_zx
+
+
+def drivetrain_magnitude(
+    frequency_hz: np.ndarray, s_zy: np.ndarray, s_zx: np.ndarray, speed_rpm: float | np.ndarray
+) -> np.ndarray:
+    """|G_DRV| of eq. (14) from the cross-spectra, (rad/s)/(N*m).
+
+    ``speed_rpm`` may be one speed per row of the spectra (shape (n, 1)) for a batch of tests.
+    """
+    hold = torque_hold_gain(frequency_hz, speed_rpm)
+    return np.abs(s_zy / s_zx) * hold / speed_filter_gain(frequency_hz, speed_rpm)
