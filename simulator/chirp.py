@@ -149,3 +149,14 @@ def requested_test_torque(t: float, schedule: np.ndarray, request_period: float)
             phase = 2.0 * math.pi * (f1 * tau + (f2 - f1) * tau * tau / (2.0 * duration))
             return schedule[row, 4] * math.sin(phase)
     return 0.0
+
+
+@numba.njit(cache=True)
+def requested_test_torques(
+    times: np.ndarray, schedule: np.ndarray, request_period: float
+) -> np.ndarray:
+    """:func:`requested_test_torque` at each of ``times`` (s), N*m."""
+    out = np.empty(times.shape[0])
+    for i in range(times.shape[0]):
+        out[i] = requested_test_torque(times[i], schedule, request_period)
+    return out

@@ -13,7 +13,8 @@ Events on the angle grid, at the start of a step, in this order:
    cylinder-pressure sensor, once per stroke), then the next cylinder starts its stroke and holds
    T_m = K * T_ecu for its working cycle (eq. 3), T_ecu being the last request of the ECU;
 2. every pi/2 (15 steps): the speed sensor outputs the mean of the last 30 step speeds (eq. 9), the
-   idle controller updates, and T_ecu = controller output + held test torque request.
+   idle controller updates, and T_ecu = controller output + the test torque request last received
+   (a table of request times and values, scaled: the plan's chirps or a recording's requests).
 
 Kernels return a status and never raise: 0 completed, 1 the engine speed left 0.5..3 times the
 set-point (a stall or run-away of a non-physical parameter set), 2 an output buffer filled up.
@@ -33,7 +34,6 @@ from simulator.angle_grid import (
     STEPS_PER_SPEED_SAMPLE,
     STEPS_PER_STROKE,
 )
-from simulator.chirp import requested_test_torque
 from simulator.couplings import (
     backlash_torque,
     backlash_update,
@@ -63,8 +63,9 @@ def run_plant(
     compression: np.ndarray,
     inertia: np.ndarray,
     controller: np.ndarray,
-    schedule: np.ndarray,
-    request_period: float,
+    request_t: np.ndarray,
+    request_nm: np.ndarray,
+    request_scale: float,
     t_end: float,
     n_sub: int,
     sigmas: np.ndarray,
@@ -84,10 +85,11 @@ def run_plant(
         Engine tables of :class:`simulator.engine.EngineTables`.
     controller
         :meth:`simulator.controller.IdleController.as_array`.
-    schedule
-        Chirp schedule (n, 5), :data:`simulator.chirp.CHIRP_COLUMNS`.
-    request_period
-        Period of the test-torque request frames, s.
+    request_t, request_nm
+        Test-torque requests as the ECU receives them: times (s, increasing) and values (N*m);
+        the ECU holds the last one received (zero before the first).
+    request_scale
+        Factor on the request values (a unit chirp scaled to an amplitude).
     t_end
         Simulated duration, s.
     n_sub
@@ -128,7 +130,12 @@ def run_plant(
     backlash = 0.0
     held = np.full(N_CYL, t_loss)
     integral = min(max(t_loss / gain, u_min), u_max)
-    request = integral + requested_test_torque(0.0, schedule, request_period)
+    n_requests = request_t.shape[0]
+    received = 0  # requests received so far
+    while received < n_requests and request_t[received] <= 0.0:
+        received += 1
+    test = request_scale * request_nm[received - 1] if received > 0 else 0.0
+    request = integral + test
     window = np.full(N_WIN, w_set)
     window_sum = N_WIN * w_set
     window_pos = 0
@@ -164,7 +171,10 @@ def run_plant(
             else:
                 command = integral
             t_control = t
-            request = command + requested_test_torque(t, schedule, request_period)
+            while received < n_requests and request_t[received] <= t:
+                received += 1
+            test = request_scale * request_nm[received - 1] if received > 0 else 0.0
+            request = command + test
             out_speed[n_speed, 0] = t
             out_speed[n_speed, 1] = measured
             out_speed[n_speed, 2] = request
@@ -212,8 +222,9 @@ def run_plant_batch(
     compression: np.ndarray,
     inertia: np.ndarray,
     controller: np.ndarray,
-    schedules: np.ndarray,
-    request_period: float,
+    request_t: np.ndarray,
+    request_nm: np.ndarray,
+    request_scale: np.ndarray,
     t_end: float,
     n_sub: np.ndarray,
     sigmas: np.ndarray,
@@ -226,14 +237,15 @@ def run_plant_batch(
 ) -> None:
     """Run :func:`run_plant` for many jobs in parallel over the cores.
 
-    Every argument that differs per job has a leading job axis: ``params`` (n, 12),
-    ``schedules`` (n, m, 5; pad unused rows with zero duration), ``n_sub`` (n,), the noise draws
-    and the outputs. ``counts`` (n, 3) receives each job's speed count, torque count and status.
+    All jobs share the request table; every argument that differs per job has a leading job
+    axis: ``params`` (n, 12), ``request_scale`` (n,), ``n_sub`` (n,), the noise draws and the
+    outputs. ``counts`` (n, 3) receives each job's speed count, torque count and status.
     """
     for job in numba.prange(params.shape[0]):
         n_speed, n_torque, status = run_plant(
-            params[job], combustion_shape, compression, inertia, controller, schedules[job],
-            request_period, t_end, n_sub[job], sigmas, cv_noise[job], speed_noise[job],
+            params[job], combustion_shape, compression, inertia, controller, request_t,
+            request_nm, request_scale[job], t_end, n_sub[job], sigmas, cv_noise[job],
+            speed_noise[job],
             torque_noise[job], out_speed[job], out_torque[job],
         )
         counts[job, 0] = n_speed

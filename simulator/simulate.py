@@ -14,7 +14,7 @@ import numpy as np
 
 from dtid.errors import AnalysisError, ConfigError
 from simulator.angle_grid import RPM_PER_RAD_S, STEP_RAD, STEPS_PER_SPEED_SAMPLE, STEPS_PER_STROKE
-from simulator.chirp import TestPlan, requested_test_torque
+from simulator.chirp import TestPlan, requested_test_torques
 from simulator.controller import IdleController
 from simulator.engine import EngineGeometry, EngineTables, engine_tables
 from simulator.kernel import (
@@ -144,18 +144,16 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
     return max(1, math.ceil(rate * longest_step / STABILITY_LIMIT))
 
 
-def _capacity(plan: TestPlan, controller: IdleController) -> tuple[int, int]:
+def _capacity(t_end: float, controller: IdleController) -> tuple[int, int]:
     """Output rows needed for the speed and stroke events at the highest admitted speed."""
-    steps = plan.end_s * MAX_SPEED_RATIO * controller.setpoint_rpm / RPM_PER_RAD_S / STEP_RAD
+    steps = t_end * MAX_SPEED_RATIO * controller.setpoint_rpm / RPM_PER_RAD_S / STEP_RAD
     return int(steps / STEPS_PER_SPEED_SAMPLE) + 8, int(steps / STEPS_PER_STROKE) + 8
 
 
 def test_requests(plan: TestPlan) -> tuple[np.ndarray, np.ndarray]:
     """The tool's test-torque requests over the whole test: times, s, and values, N*m."""
     times = np.arange(0.0, plan.end_s, plan.request_period_s)
-    schedule = plan.schedule()
-    values = np.array([requested_test_torque(t, schedule, plan.request_period_s) for t in times])
-    return times, values
+    return times, requested_test_torques(times, plan.schedule(), plan.request_period_s)
 
 
 def simulate(
@@ -189,7 +187,8 @@ def simulate(
     plan = plan or TestPlan()
     options = options or SimulationOptions()
     params = parameters.as_array()
-    n_speed_max, n_stroke_max = _capacity(plan, options.controller)
+    n_speed_max, n_stroke_max = _capacity(plan.end_s, options.controller)
+    request_t, request_nm = test_requests(plan)
     rng = np.random.default_rng(seed)
     cv_noise = rng.standard_normal(n_stroke_max)
     torque_noise = rng.standard_normal(n_stroke_max)
@@ -199,7 +198,7 @@ def simulate(
     tables = options.tables()
     n_speed, n_torque, status = run_plant(
         params, tables.combustion_shape, tables.compression, tables.inertia,
-        options.controller.as_array(), plan.schedule(), plan.request_period_s, plan.end_s,
+        options.controller.as_array(), request_t, request_nm, 1.0, plan.end_s,
         substeps(params, options.controller), options.sigmas(), cv_noise, speed_noise,
         torque_noise, out_speed, out_torque,
     )
@@ -213,7 +212,6 @@ def simulate(
         raise RuntimeError(f"simulator kernel ended with status {status}")
     speed = out_speed[:n_speed]
     torque = out_torque[:n_torque]
-    request_t, request_nm = test_requests(plan)
     return SimulationResult(
         speed_t=speed[:, 0].copy(),
         speed_rpm=speed[:, 1].copy(),
@@ -260,25 +258,57 @@ def simulate_batch(
     plan: TestPlan,
     options: SimulationOptions | None = None,
     seed: int = 0,
+    streams: np.ndarray | None = None,
 ) -> BatchResult:
-    """Simulate many parameter sets, each at one chirp amplitude, in parallel over the cores.
+    """Simulate many parameter sets, each driven by one chirp of its own amplitude.
 
     Job i simulates ``params[i]`` driven by a single chirp of amplitude ``amplitudes_nm[i]`` with
-    the frequencies, duration and settling time of ``plan`` (its first chirp). This is the entry
-    point of the identification, which calls it with thousands of jobs.
+    the frequencies, duration and settling time of ``plan`` (its amplitudes are ignored).
+    See :func:`replay_batch` for the parameters.
+    """
+    single = TestPlan(
+        amplitudes_nm=(1.0,), f1_hz=plan.f1_hz, f2_hz=plan.f2_hz, duration_s=plan.duration_s,
+        settle_s=plan.settle_s, pause_s=plan.pause_s, request_period_s=plan.request_period_s,
+    )
+    request_t, request_nm = test_requests(single)
+    return replay_batch(
+        params, request_t, request_nm, amplitudes_nm, single.end_s, options, seed, streams
+    )
+
+
+def replay_batch(
+    params: np.ndarray,
+    request_t: np.ndarray,
+    request_nm: np.ndarray,
+    scales: np.ndarray,
+    t_end: float,
+    options: SimulationOptions | None = None,
+    seed: int = 0,
+    streams: np.ndarray | None = None,
+) -> BatchResult:
+    """Simulate many parameter sets driven by one table of test-torque requests, in parallel.
+
+    This is the entry point of the identification, which replays a recording's own requests
+    for thousands of parameter sets.
 
     Parameters
     ----------
     params
         (n_jobs, 12) parameters ordered as :data:`simulator.parameters.NAMES`, SI units.
-    amplitudes_nm
-        (n_jobs,) chirp amplitude of each job, N*m.
-    plan
-        Chirp timing; its amplitudes are ignored.
+    request_t, request_nm
+        The test-torque requests: times (s, increasing) and values (N*m), shared by all jobs.
+    scales
+        (n_jobs,) factor on the request values per job.
+    t_end
+        Simulated duration, s.
     options
         Shared by all jobs.
     seed
-        Seed of the noise draws; job i gets the stream ``(seed, i)``.
+        Seed of the noise draws; job i gets the stream ``(seed, streams[i])``.
+    streams
+        (n_jobs,) noise stream of each job, ``arange(n_jobs)`` by default. Jobs given the same
+        stream see the same combustion variation and sensor noise (common random numbers, which
+        keep an objective over parameter sets deterministic).
 
     Returns
     -------
@@ -288,25 +318,27 @@ def simulate_batch(
     params = np.ascontiguousarray(params, dtype=np.float64)
     if params.ndim != 2 or params.shape[1] != len(NAMES):
         raise ConfigError(f"params must have shape (n, {len(NAMES)}), got {params.shape}")
-    amplitudes = np.asarray(amplitudes_nm, dtype=np.float64)
     n_jobs = params.shape[0]
-    if amplitudes.shape != (n_jobs,):
-        raise ConfigError(f"amplitudes_nm must have shape ({n_jobs},), got {amplitudes.shape}")
-    single = TestPlan(
-        amplitudes_nm=(1.0,), f1_hz=plan.f1_hz, f2_hz=plan.f2_hz, duration_s=plan.duration_s,
-        settle_s=plan.settle_s, pause_s=plan.pause_s, request_period_s=plan.request_period_s,
-    )
-    schedules = np.repeat(single.schedule()[None, :, :], n_jobs, axis=0)
-    schedules[:, 0, 4] = amplitudes
-    n_speed_max, n_stroke_max = _capacity(single, options.controller)
+    scales = np.ascontiguousarray(scales, dtype=np.float64)
+    if scales.shape != (n_jobs,):
+        raise ConfigError(f"scales must have shape ({n_jobs},), got {scales.shape}")
+    request_t = np.ascontiguousarray(request_t, dtype=np.float64)
+    request_nm = np.ascontiguousarray(request_nm, dtype=np.float64)
+    if request_t.shape != request_nm.shape or np.any(np.diff(request_t) < 0):
+        raise ConfigError("request times must increase and match the request values")
+    streams = np.arange(n_jobs) if streams is None else np.asarray(streams, dtype=np.int64)
+    if streams.shape != (n_jobs,):
+        raise ConfigError(f"streams must have shape ({n_jobs},), got {streams.shape}")
+    n_speed_max, n_stroke_max = _capacity(t_end, options.controller)
     cv_noise = np.empty((n_jobs, n_stroke_max))
     torque_noise = np.empty((n_jobs, n_stroke_max))
     speed_noise = np.empty((n_jobs, n_speed_max))
-    for job in range(n_jobs):
-        rng = np.random.default_rng((seed, job))
-        cv_noise[job] = rng.standard_normal(n_stroke_max)
-        torque_noise[job] = rng.standard_normal(n_stroke_max)
-        speed_noise[job] = rng.standard_normal(n_speed_max)
+    for stream in np.unique(streams):
+        rng = np.random.default_rng((seed, int(stream)))
+        rows = streams == stream
+        cv_noise[rows] = rng.standard_normal(n_stroke_max)
+        torque_noise[rows] = rng.standard_normal(n_stroke_max)
+        speed_noise[rows] = rng.standard_normal(n_speed_max)
     n_sub = np.array([substeps(row, options.controller) for row in params], dtype=np.int64)
     out_speed = np.empty((n_jobs, n_speed_max, 5))
     out_torque = np.empty((n_jobs, n_stroke_max, 3))
@@ -314,7 +346,7 @@ def simulate_batch(
     tables = options.tables()
     run_plant_batch(
         params, tables.combustion_shape, tables.compression, tables.inertia,
-        options.controller.as_array(), schedules, single.request_period_s, single.end_s, n_sub,
+        options.controller.as_array(), request_t, request_nm, scales, t_end, n_sub,
         options.sigmas(), cv_noise, speed_noise, torque_noise, out_speed, out_torque, counts,
     )
     return BatchResult(out_speed, out_torque, counts[:, 0], counts[:, 1], counts[:, 2])

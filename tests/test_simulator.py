@@ -125,13 +125,14 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
     requests = simulate(reference, plan, options)  # supplies the tool's test-torque requests
     frfs = []
     for n_sub in (1, 4):
-        n_speed_max, n_stroke_max = _capacity(plan, options.controller)
+        n_speed_max, n_stroke_max = _capacity(plan.end_s, options.controller)
         out_speed = np.empty((n_speed_max, 5))
         out_torque = np.empty((n_stroke_max, 3))
         zeros_s, zeros_t = np.zeros(n_speed_max), np.zeros(n_stroke_max)
         n_speed, n_torque, status = run_plant(
             reference.as_array(), tables.combustion_shape, tables.compression, tables.inertia,
-            options.controller.as_array(), plan.schedule(), plan.request_period_s, plan.end_s,
+            options.controller.as_array(), requests.request_t, requests.test_torque_nm, 1.0,
+            plan.end_s,
             n_sub, options.sigmas(), zeros_t, zeros_s, zeros_t, out_speed, out_torque,
         )
         assert status == 0

@@ -1,0 +1,178 @@
+"""The identified parameters of setup 4 and their normalisation (paper section IV-B).
+
+The optimiser works on theta = (J_sum, x1, x12, c12, c23, d12, d23, Tc12, eps12, eps23), each
+normalised to [0, 1] within its bounds, with x1 = J1/(J1+J2) and x12 = (J1+J2)/(J1+J2+J3). T_loss
+and K are not identified by the drivetrain fit: K comes from |G_ENG| (eq. 24) and T_loss from the
+mean torque at idle. Any subset of theta can be fixed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtid.errors import ConfigError
+from simulator.parameters import INDEX, DrivetrainParameters
+
+THETA_NAMES: tuple[str, ...] = (
+    "J_sum",
+    "x1",
+    "x12",
+    "c12",
+    "c23",
+    "d12",
+    "d23",
+    "Tc12",
+    "eps12",
+    "eps23",
+)
+THETA_UNITS: dict[str, str] = {
+    "J_sum": "kg*m^2",
+    "x1": "1",
+    "x12": "1",
+    "c12": "N*m/rad",
+    "c23": "N*m/rad",
+    "d12": "N*m*s/rad",
+    "d23": "N*m*s/rad",
+    "Tc12": "N*m",
+    "eps12": "rad",
+    "eps23": "rad",
+}
+PRIOR_SPAN = 1.0
+"""Default bounds: the prior value times (1 - span, 1 + span), i.e. +-100 % (section IV-B)."""
+MIN_INERTIA_FRACTION = 0.05
+"""Lower bound on J_sum as a fraction of its prior, and the margin keeping x1, x12 in (0, 1):
+a vanishing inertia cannot idle, so +-100 % bounds are narrowed there."""
+
+
+def theta_from_parameters(p: DrivetrainParameters) -> dict[str, float]:
+    """The setup-4 parameters of a physical parameter set."""
+    j12 = p.J1 + p.J2
+    return {
+        "J_sum": j12 + p.J3,
+        "x1": p.J1 / j12,
+        "x12": j12 / (j12 + p.J3),
+        "c12": p.c12,
+        "c23": p.c23,
+        "d12": p.d12,
+        "d23": p.d23,
+        "Tc12": p.Tc12,
+        "eps12": p.eps12,
+        "eps23": p.eps23,
+    }
+
+
+def theta_to_arrays(theta: np.ndarray, t_loss: float, gain: float) -> np.ndarray:
+    """Physical parameter arrays (n, 12) from setup-4 values (n, 10), SI units."""
+    theta = np.atleast_2d(theta)
+    j_sum, x1, x12 = theta[:, 0], theta[:, 1], theta[:, 2]
+    out = np.empty((theta.shape[0], len(INDEX)))
+    out[:, INDEX["J1"]] = j_sum * x12 * x1
+    out[:, INDEX["J2"]] = j_sum * x12 * (1 - x1)
+    out[:, INDEX["J3"]] = j_sum * (1 - x12)
+    for name in ("c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23"):
+        out[:, INDEX[name]] = theta[:, THETA_NAMES.index(name)]
+    out[:, INDEX["T_loss"]] = t_loss
+    out[:, INDEX["K"]] = gain
+    return out
+
+
+@dataclass(frozen=True)
+class Parameterization:
+    """Bounds, fixed values and the [0, 1] normalisation of the free setup-4 parameters.
+
+    Attributes
+    ----------
+    lower, upper
+        Bounds of all ten theta values (ordered as :data:`THETA_NAMES`), SI units.
+    fixed
+        Values of the fixed parameters, by name.
+    t_loss, gain
+        T_loss (N*m) and K, held fixed.
+    """
+
+    lower: np.ndarray
+    upper: np.ndarray
+    fixed: Mapping[str, float]
+    t_loss: float
+    gain: float
+
+    @classmethod
+    def around(
+        cls,
+        prior: DrivetrainParameters,
+        t_loss: float,
+        gain: float,
+        fixed: Mapping[str, float] | None = None,
+        bounds: Mapping[str, tuple[float, float]] | None = None,
+        span: float = PRIOR_SPAN,
+    ) -> Parameterization:
+        """Bounds of +-``span`` around a prior (narrowed where a value cannot idle).
+
+        Parameters
+        ----------
+        prior
+            Prior parameter set (the reference vehicle by default in the command line).
+        t_loss, gain
+            T_loss, N*m, and K, held fixed.
+        fixed
+            Parameters to hold at a value, by theta name.
+        bounds
+            Explicit (lower, upper) bounds by theta name, overriding the span.
+        span
+            Relative half-width of the default bounds.
+        """
+        fixed = dict(fixed or {})
+        bounds = dict(bounds or {})
+        for name in (*fixed, *bounds):
+            if name not in THETA_NAMES:
+                raise ConfigError(
+                    f"unknown parameter {name!r}; the identified parameters are "
+                    f"{', '.join(THETA_NAMES)}"
+                )
+        centre = theta_from_parameters(prior)
+        lower = np.array([centre[n] * (1 - span) for n in THETA_NAMES])
+        upper = np.array([centre[n] * (1 + span) for n in THETA_NAMES])
+        lower[0] = max(lower[0], MIN_INERTIA_FRACTION * centre["J_sum"])
+        for name in ("x1", "x12"):
+            i = THETA_NAMES.index(name)
+            lower[i] = max(lower[i], MIN_INERTIA_FRACTION)
+            upper[i] = min(upper[i], 1 - MIN_INERTIA_FRACTION)
+        for name, (lo, hi) in bounds.items():
+            if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
+                raise ConfigError(
+                    f"bounds of {name} must satisfy 0 <= lower < upper, got {lo}, {hi}"
+                )
+            i = THETA_NAMES.index(name)
+            lower[i], upper[i] = lo, hi
+        return cls(np.maximum(lower, 0.0), upper, fixed, t_loss, gain)
+
+    @property
+    def free(self) -> tuple[str, ...]:
+        """Names of the free parameters, in theta order."""
+        return tuple(n for n in THETA_NAMES if n not in self.fixed)
+
+    def theta(self, unit: np.ndarray) -> np.ndarray:
+        """Full theta (n, 10) from normalised free values (n, n_free) in [0, 1]."""
+        unit = np.atleast_2d(unit)
+        theta = np.empty((unit.shape[0], len(THETA_NAMES)))
+        free = 0
+        for i, name in enumerate(THETA_NAMES):
+            if name in self.fixed:
+                theta[:, i] = self.fixed[name]
+            else:
+                theta[:, i] = self.lower[i] + unit[:, free] * (self.upper[i] - self.lower[i])
+                free += 1
+        return theta
+
+    def unit(self, theta: np.ndarray) -> np.ndarray:
+        """Normalised free values (n, n_free) of a full theta (n, 10)."""
+        theta = np.atleast_2d(theta)
+        idx = [THETA_NAMES.index(n) for n in self.free]
+        return (theta[:, idx] - self.lower[idx]) / (self.upper[idx] - self.lower[idx])
+
+    def parameters(self, unit: np.ndarray) -> np.ndarray:
+        """Physical parameter arrays (n, 12) from normalised free values."""
+        return theta_to_arrays(self.theta(unit), self.t_loss, self.gain)
