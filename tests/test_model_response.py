@@ -1,0 +1,75 @@
+"""Model side of the identification: parameterisation, objective, and the replayed test."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identification.frf import estimate_frf
+from identification.model_response import ModelTest, model_drv_db
+from identification.objective import FAILED_NRMSE, nrmse, summed_nrmse
+from identification.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+    theta_to_arrays,
+)
+from identification.runs import find_runs
+from identification.testdata import from_simulation
+from simulator.chirp import TestPlan
+from simulator.parameters import DrivetrainParameters
+from simulator.simulate import SimulationOptions, simulate
+
+
+def test_theta_round_trip(reference: DrivetrainParameters) -> None:
+    theta = theta_from_parameters(reference)
+    arrays = theta_to_arrays(np.array([[theta[n] for n in THETA_NAMES]]), 15.0, 0.9)
+    np.testing.assert_allclose(arrays[0], reference.as_array(), rtol=1e-12)
+
+
+def test_normalisation_round_trip_and_fixing(reference: DrivetrainParameters) -> None:
+    par = Parameterization.around(reference, 15.0, 0.9, fixed={"Tc12": 0.25})
+    assert "Tc12" not in par.free and len(par.free) == 9
+    unit = np.random.default_rng(0).uniform(size=(5, 9))
+    theta = par.theta(unit)
+    np.testing.assert_allclose(par.unit(theta), unit, atol=1e-12)
+    assert (theta[:, THETA_NAMES.index("Tc12")] == 0.25).all()
+    # +-100 % bounds, narrowed where an inertia would vanish
+    c12 = THETA_NAMES.index("c12")
+    assert (par.lower[c12], par.upper[c12]) == (0.0, 2 * reference.c12)
+    assert 0 < par.lower[0] and 0 < par.lower[1] < par.upper[1] < 1
+
+
+def test_nrmse_eq16() -> None:
+    measured = np.array([-10.0, -12.0, -20.0, -15.0])
+    assert nrmse(measured, measured)[0] == 0.0
+    assert nrmse(measured, np.full(4, measured.mean()))[0] == pytest.approx(1.0)
+    assert nrmse(measured, np.full(4, np.nan))[0] == FAILED_NRMSE
+    assert summed_nrmse([measured, measured], [measured + 0.0, measured])[0] == 0.0
+
+
+def test_model_replays_a_clean_recording_exactly(reference: DrivetrainParameters) -> None:
+    """Same parameters, same requests, same estimator: the model's |G_DRV| is the measured one."""
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    data = from_simulation(simulate(reference, plan, SimulationOptions.clean()))
+    runs = find_runs(data.test_torque)
+    measured = [estimate_frf(data, run) for run in runs]
+    test = ModelTest(
+        data.test_torque, tuple(runs), tuple(e.frequency_hz for e in measured), 1000.0, 0.25
+    )
+    other = reference.replace(c12=0.8 * reference.c12)
+    model = model_drv_db(np.stack([reference.as_array(), other.as_array()]), test)
+    for estimate, db in zip(measured, model, strict=True):
+        np.testing.assert_allclose(db[0], estimate.drv_db, atol=1e-4)
+        assert np.abs(db[1] - estimate.drv_db).max() > 1.0  # a softer DMF is seen
+
+
+def test_a_set_that_cannot_idle_gets_nan(reference: DrivetrainParameters) -> None:
+    plan = TestPlan(amplitudes_nm=(5.0,), duration_s=10.0)
+    data = from_simulation(simulate(reference, plan, SimulationOptions.clean()))
+    runs = find_runs(data.test_torque)
+    grid = estimate_frf(data, runs[0], resolution_hz=1.0).frequency_hz
+    test = ModelTest(data.test_torque, tuple(runs), (grid,), 1000.0, 1.0)
+    stalling = reference.replace(T_loss=3000.0).as_array()
+    db = model_drv_db(np.stack([reference.as_array(), stalling]), test)[0]
+    assert np.isfinite(db[0]).all() and np.isnan(db[1]).all()
