@@ -57,7 +57,11 @@ class FrfEstimate:
     speed_rpm
         Mean engine speed over the run, rpm (the speed the sensor corrections use).
     sample_rate_hz
-        Rate of the uniform grid, Hz.
+        Mean rate of the crank events, Hz (sets the frequency axis).
+    n_events
+        Crank events in the run (the length of the analysed signals).
+    nperseg
+        Welch segment length, events.
     """
 
     run: ChirpRun
@@ -67,6 +71,8 @@ class FrfEstimate:
     coherence: np.ndarray
     speed_rpm: float
     sample_rate_hz: float
+    n_events: int
+    nperseg: int
 
     @property
     def drv_db(self) -> np.ndarray:
@@ -212,9 +218,7 @@ def estimate_frf(
     f, s_zy, s_zx = frequency[keep], s_zy[keep], s_zx[keep]
     welch = _welch_settings(rate, nperseg)
     s_zz, s_yy, s_xx = (signal.welch(v, **welch)[1][keep] for v in (z, y, x))
-    coherence = np.minimum(
-        np.abs(s_zy) ** 2 / (s_zz * s_yy), np.abs(s_zx) ** 2 / (s_zz * s_xx)
-    )
+    coherence = np.minimum(np.abs(s_zy) ** 2 / (s_zz * s_yy), np.abs(s_zx) ** 2 / (s_zz * s_xx))
     drv = drivetrain_magnitude(f, s_zy, s_zx, speed_rpm)
     if data.torque_request is not None and len(data.torque_request) > 1:
         u = _hold(data.torque_request, grid)
@@ -222,7 +226,7 @@ def estimate_frf(
         eng = np.abs(s_zx / s_zu[keep]) / torque_hold_gain(f, speed_rpm)
     else:
         eng = np.full_like(f, np.nan)
-    return FrfEstimate(run, f, drv, eng, coherence, speed_rpm, rate)
+    return FrfEstimate(run, f, drv, eng, coherence, speed_rpm, rate, len(grid), nperseg)
 
 
 def _welch_settings(rate: float, nperseg: int) -> dict[str, object]:

@@ -18,8 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identification.frf import cross_spectra, drivetrain_magnitude
-from identification.runs import ChirpRun
+from identification.frf import FrfEstimate, cross_spectra, drivetrain_magnitude
 from identification.testdata import Series
 from simulator.controller import IdleController
 from simulator.simulate import BatchResult, SimulationOptions, replay_batch
@@ -33,26 +32,22 @@ class ModelTest:
     ----------
     requests
         The recording's test-torque requests (times from the recording's start, s; N*m).
-    runs
-        The chirp runs to estimate, with the frequency grid of each measured estimate.
-    frequency_hz
-        Per run, the measured frequency grid, Hz (the model's |G_DRV| is interpolated onto it).
+    estimates
+        The measured FRFs the model is compared with: each gives the run, the frequency grid, the
+        number of crank events analysed and the Welch segment length, which the model's estimate
+        uses exactly, so that it depends on its own parameter set only.
     setpoint_rpm
         Idle speed of the test, rpm.
-    resolution_hz
-        Welch resolution of the measured estimates, Hz.
     combustion_variation
-        Relative cycle-to-cycle variation of the mean torque seen at idle in the recording; the
-        model engine varies as much, with the same draws for every parameter set.
+        Relative cycle-to-cycle variation of the mean torque of the model engine (0: the model
+        predicts the expected response), with the same draws for every parameter set.
     seed
         Seed of those draws.
     """
 
     requests: Series
-    runs: tuple[ChirpRun, ...]
-    frequency_hz: tuple[np.ndarray, ...]
+    estimates: tuple[FrfEstimate, ...]
     setpoint_rpm: float
-    resolution_hz: float
     combustion_variation: float = 0.0
     seed: int = 0
     options: SimulationOptions = field(init=False)
@@ -66,12 +61,12 @@ class ModelTest:
 
     @property
     def end_s(self) -> float:
-        """Simulated time needed: up to the end of the last run, s."""
-        return max(run.end_s for run in self.runs) + 0.1
+        """Simulated time needed: past the end of the last run, with room for slower speeds, s."""
+        return max(e.run.end_s + 0.1 * e.run.duration_s for e in self.estimates)
 
 
 def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
-    """Model |G_DRV| in dB for many parameter sets, per chirp run of the test.
+    """Model |G_DRV| in dB for many parameter sets, per measured chirp run of the test.
 
     Parameters
     ----------
@@ -83,8 +78,9 @@ def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
     Returns
     -------
     list of numpy.ndarray
-        Per run, (n, len(test.frequency_hz[r])) dB re 1 (rad/s)/(N*m); rows of parameter sets
-        whose simulated engine could not idle are NaN.
+        Per run, (n, len(frequency grid)) dB re 1 (rad/s)/(N*m); rows of parameter sets whose
+        simulated engine could not idle through the run are NaN. Each row depends on its own
+        parameter set only.
     """
     n_sets = params.shape[0]
     batch = replay_batch(
@@ -97,41 +93,35 @@ def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
         seed=test.seed,
         streams=np.zeros(n_sets, dtype=np.int64),
     )
-    ok = np.flatnonzero(batch.status == 0)
-    result = []
-    for run, grid in zip(test.runs, test.frequency_hz, strict=True):
-        db = np.full((n_sets, len(grid)), np.nan)
-        if len(ok):
-            db[ok] = _run_db(batch, ok, run, grid, test)
-        result.append(db)
-    return result
+    return [_run_db(batch, estimate, test.requests) for estimate in test.estimates]
 
 
-def _run_db(
-    batch: BatchResult, jobs: np.ndarray, run: ChirpRun, grid: np.ndarray, test: ModelTest
-) -> np.ndarray:
-    """|G_DRV| in dB of one run for the given jobs, on the measured grid."""
-    windows = []
-    for job in jobs:
+def _run_db(batch: BatchResult, estimate: FrfEstimate, requests: Series) -> np.ndarray:
+    """|G_DRV| in dB of one run for every job of the batch, on the measured grid."""
+    n_jobs, length = len(batch.status), estimate.n_events
+    y, x, z = (np.zeros((n_jobs, length)) for _ in range(3))
+    rate = np.ones(n_jobs)
+    ok = np.zeros(n_jobs, dtype=bool)
+    for job in np.flatnonzero(batch.status == 0):
         speed = batch.speed[job, : batch.n_speed[job]]
         torque = batch.torque[job, : batch.n_torque[job]]
-        lo, hi = np.searchsorted(speed[:, 0], [run.start_s, run.end_s])
-        t = speed[lo:hi, 0]
+        first = np.searchsorted(speed[:, 0], estimate.run.start_s)
+        if first + length > len(speed):
+            continue
+        t = speed[first : first + length, 0]
         held_torque = np.clip(np.searchsorted(torque[:, 0], t, side="right") - 1, 0, None)
-        held_request = np.searchsorted(test.requests.t, t, side="right") - 1
-        z = np.where(held_request >= 0, test.requests.value[held_request], 0.0)
-        windows.append((t, speed[lo:hi, 1], torque[held_torque, 1], z))
-    length = min(len(w[0]) for w in windows)
-    t, y, x, z = (np.stack([w[i][:length] for w in windows]) for i in range(4))
-    rate = 1.0 / np.median(np.diff(t, axis=1), axis=1)
-    common_rate = float(np.median(rate))
-    nperseg = round(common_rate / test.resolution_hz)
-    frequency, s_zy, s_zx = cross_spectra(z, y, x, common_rate, nperseg)
-    magnitude = drivetrain_magnitude(frequency, s_zy, s_zx, y.mean(axis=1, keepdims=True))
-    # each job's own event rate sets its frequency axis
-    return np.stack(
-        [
-            np.interp(grid, frequency * job_rate / common_rate, 20 * np.log10(m))
-            for m, job_rate in zip(magnitude, rate, strict=True)
-        ]
-    )
+        held_request = np.searchsorted(requests.t, t, side="right") - 1
+        y[job] = speed[first : first + length, 1]
+        x[job] = torque[held_torque, 1]
+        z[job] = np.where(held_request >= 0, requests.value[held_request], 0.0)
+        rate[job] = 1.0 / np.median(np.diff(t))
+        ok[job] = True
+    db = np.full((n_jobs, len(estimate.frequency_hz)), np.nan)
+    if not ok.any():
+        return db
+    unit_frequency, s_zy, s_zx = cross_spectra(z[ok], y[ok], x[ok], 1.0, estimate.nperseg)
+    for row, job in enumerate(np.flatnonzero(ok)):
+        frequency = unit_frequency * rate[job]  # each job's own event rate
+        magnitude = drivetrain_magnitude(frequency, s_zy[row], s_zx[row], y[job].mean())
+        db[job] = np.interp(estimate.frequency_hz, frequency, 20 * np.log10(magnitude))
+    return db

@@ -54,9 +54,7 @@ def test_model_replays_a_clean_recording_exactly(reference: DrivetrainParameters
     data = from_simulation(simulate(reference, plan, SimulationOptions.clean()))
     runs = find_runs(data.test_torque)
     measured = [estimate_frf(data, run) for run in runs]
-    test = ModelTest(
-        data.test_torque, tuple(runs), tuple(e.frequency_hz for e in measured), 1000.0, 0.25
-    )
+    test = ModelTest(data.test_torque, tuple(measured), 1000.0)
     other = reference.replace(c12=0.8 * reference.c12)
     model = model_drv_db(np.stack([reference.as_array(), other.as_array()]), test)
     for estimate, db in zip(measured, model, strict=True):
@@ -64,12 +62,23 @@ def test_model_replays_a_clean_recording_exactly(reference: DrivetrainParameters
         assert np.abs(db[1] - estimate.drv_db).max() > 1.0  # a softer DMF is seen
 
 
+def test_each_row_depends_on_its_own_parameters_only(reference: DrivetrainParameters) -> None:
+    plan = TestPlan(amplitudes_nm=(10.0,), duration_s=20.0)
+    data = from_simulation(simulate(reference, plan))
+    test = ModelTest(
+        data.test_torque, (estimate_frf(data, find_runs(data.test_torque)[0]),), 1000.0
+    )
+    alone = model_drv_db(reference.as_array()[None], test)[0][0]
+    others = np.stack([reference.as_array() * np.r_[np.full(10, f), 1, 1] for f in (0.7, 1.3)])
+    crowd = model_drv_db(np.vstack([others, reference.as_array()]), test)[0][-1]
+    np.testing.assert_array_equal(alone, crowd)
+
+
 def test_a_set_that_cannot_idle_gets_nan(reference: DrivetrainParameters) -> None:
     plan = TestPlan(amplitudes_nm=(5.0,), duration_s=10.0)
     data = from_simulation(simulate(reference, plan, SimulationOptions.clean()))
     runs = find_runs(data.test_torque)
-    grid = estimate_frf(data, runs[0], resolution_hz=1.0).frequency_hz
-    test = ModelTest(data.test_torque, tuple(runs), (grid,), 1000.0, 1.0)
+    test = ModelTest(data.test_torque, (estimate_frf(data, runs[0], resolution_hz=1.0),), 1000.0)
     stalling = reference.replace(T_loss=3000.0).as_array()
     db = model_drv_db(np.stack([reference.as_array(), stalling]), test)[0]
     assert np.isfinite(db[0]).all() and np.isnan(db[1]).all()

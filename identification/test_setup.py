@@ -1,0 +1,75 @@
+"""From recordings to what the identification needs: runs, FRFs, K, T_loss and the idle speed."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtid.errors import AnalysisError
+from identification.frf import FrfEstimate, estimate_frf
+from identification.model_response import ModelTest
+from identification.runs import find_runs
+from identification.testdata import TestData
+
+IDLE_MARGIN_S = 1.0
+"""Idle samples closer than this to a chirp (or the recording's start) are not idle, s."""
+
+
+@dataclass(frozen=True)
+class MeasuredTest:
+    """One recording's chirp runs with their FRFs, and what the model must repeat of it.
+
+    Attributes
+    ----------
+    name
+        The recording (for reports).
+    data
+        Its signals.
+    estimates
+        FRF of every chirp run, in time order.
+    setpoint_rpm
+        Mean filtered speed over the recording, rpm.
+    idle_torque_nm
+        Mean measured torque at idle outside the chirps, N*m: the loss torque T_loss.
+    """
+
+    name: str
+    data: TestData
+    estimates: tuple[FrfEstimate, ...]
+    setpoint_rpm: float
+    idle_torque_nm: float
+
+    @classmethod
+    def from_data(cls, name: str, data: TestData, resolution_hz: float) -> MeasuredTest:
+        """Find the runs, estimate their FRFs and the idle operating point."""
+        runs = find_runs(data.test_torque)
+        if not runs:
+            raise AnalysisError(f"{name}: no chirp in the test torque")
+        estimates = tuple(estimate_frf(data, run, resolution_hz) for run in runs)
+        idle = np.ones(len(data.mean_torque), dtype=bool)
+        t = data.mean_torque.t
+        idle &= t > t[0] + IDLE_MARGIN_S
+        for run in runs:
+            idle &= (t < run.start_s - IDLE_MARGIN_S) | (t > run.end_s + IDLE_MARGIN_S)
+        if idle.sum() < 10:
+            raise AnalysisError(
+                f"{name}: fewer than 10 mean-torque samples at idle outside the chirps; the loss "
+                "torque T_loss cannot be measured (record a few seconds of idle before the test)"
+            )
+        return cls(
+            name,
+            data,
+            estimates,
+            float(np.mean(data.speed.value)),
+            float(np.mean(data.mean_torque.value[idle])),
+        )
+
+    def model_test(self, indices: Sequence[int]) -> ModelTest:
+        """The model's repetition of this recording, estimating the runs given by index."""
+        return ModelTest(
+            requests=self.data.test_torque,
+            estimates=tuple(self.estimates[i] for i in indices),
+            setpoint_rpm=self.setpoint_rpm,
+        )
