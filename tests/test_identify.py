@@ -58,7 +58,7 @@ def test_linear_stiffness_and_damping_recovered(reference: DrivetrainParameters)
     result = _identify_two(linear, truth, measured, ("c12", "d12"))
     assert result.theta["c12"] == pytest.approx(truth.c12, rel=0.01)
     assert result.theta["d12"] == pytest.approx(truth.d12, rel=0.1)  # the shallowest profile
-    assert max(result.fit_nrmse.values()) < 0.02
+    assert max(result.fit_nrmse.values()) < 0.05
 
 
 @pytest.mark.xfail(
