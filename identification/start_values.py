@@ -43,9 +43,7 @@ def total_inertia(estimate: FrfEstimate) -> float | None:
     return float(np.median(1.0 / (drv * 2 * np.pi * f[low])))
 
 
-def start_theta(
-    estimates: Sequence[FrfEstimate], prior: DrivetrainParameters
-) -> dict[str, float]:
+def start_theta(estimates: Sequence[FrfEstimate], prior: DrivetrainParameters) -> dict[str, float]:
     """Setup-4 start values: J_sum from the FRFs' low-frequency asymptote, the rest the prior.
 
     Parameters

@@ -10,7 +10,7 @@ import numpy as np
 from dtid.errors import AnalysisError
 from identification.frf import FrfEstimate, estimate_frf
 from identification.model_response import ModelTest
-from identification.runs import find_runs
+from identification.runs import ChirpRun, find_runs
 from identification.testdata import TestData
 
 IDLE_MARGIN_S = 1.0
@@ -30,9 +30,13 @@ class MeasuredTest:
     estimates
         FRF of every chirp run, in time order.
     setpoint_rpm
-        Mean filtered speed over the recording, rpm.
+        Mean filtered speed at idle outside the chirps, rpm: the idle set-point.
     idle_torque_nm
         Mean measured torque at idle outside the chirps, N*m: the loss torque T_loss.
+    combustion_variation
+        Relative standard deviation of the idle torque from stroke to stroke: the cycle-to-cycle
+        variation the model engine repeats (it includes the torque sensor's noise, so it errs
+        high; zero for a clean simulated recording).
     """
 
     name: str
@@ -40,6 +44,7 @@ class MeasuredTest:
     estimates: tuple[FrfEstimate, ...]
     setpoint_rpm: float
     idle_torque_nm: float
+    combustion_variation: float
 
     @classmethod
     def from_data(cls, name: str, data: TestData, resolution_hz: float) -> MeasuredTest:
@@ -48,28 +53,33 @@ class MeasuredTest:
         if not runs:
             raise AnalysisError(f"{name}: no chirp in the test torque")
         estimates = tuple(estimate_frf(data, run, resolution_hz) for run in runs)
-        idle = np.ones(len(data.mean_torque), dtype=bool)
-        t = data.mean_torque.t
-        idle &= t > t[0] + IDLE_MARGIN_S
-        for run in runs:
-            idle &= (t < run.start_s - IDLE_MARGIN_S) | (t > run.end_s + IDLE_MARGIN_S)
-        if idle.sum() < 10:
+        torque = data.mean_torque.value[_idle(data.mean_torque.t, runs)]
+        speed = data.speed.value[_idle(data.speed.t, runs)]
+        if len(torque) < 10:
             raise AnalysisError(
                 f"{name}: fewer than 10 mean-torque samples at idle outside the chirps; the loss "
                 "torque T_loss cannot be measured (record a few seconds of idle before the test)"
             )
-        return cls(
-            name,
-            data,
-            estimates,
-            float(np.mean(data.speed.value)),
-            float(np.mean(data.mean_torque.value[idle])),
-        )
+        mean = float(np.mean(torque))
+        # stroke-to-stroke differences: the slow idle control cancels, the variation stays
+        variation = float(np.std(np.diff(torque)) / np.sqrt(2) / mean) if mean > 0 else 0.0
+        return cls(name, data, estimates, float(np.mean(speed)), mean, variation)
 
-    def model_test(self, indices: Sequence[int]) -> ModelTest:
+    def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
         """The model's repetition of this recording, estimating the runs given by index."""
+        extra = {} if realizations is None else {"realizations": realizations}
         return ModelTest(
             requests=self.data.test_torque,
             estimates=tuple(self.estimates[i] for i in indices),
             setpoint_rpm=self.setpoint_rpm,
+            combustion_variation=self.combustion_variation,
+            **extra,
         )
+
+
+def _idle(t: np.ndarray, runs: Sequence[ChirpRun]) -> np.ndarray:
+    """Samples at idle: after the recording's first second and away from every chirp."""
+    idle = t > t[0] + IDLE_MARGIN_S
+    for run in runs:
+        idle &= (t < run.start_s - IDLE_MARGIN_S) | (t > run.end_s + IDLE_MARGIN_S)
+    return idle
