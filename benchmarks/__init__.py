@@ -1,0 +1,1 @@
+"""Benchmarks of drivetrain-id (not tests: they measure and report, they assert nothing)."""
