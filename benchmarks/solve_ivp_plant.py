@@ -435,20 +435,8 @@ def simulate_solve_ivp(
 
     speed = np.array(speed_rows, dtype=np.float64).reshape(-1, 5)
     torque = np.array(torque_rows, dtype=np.float64).reshape(-1, 3)
-    result = SimulationResult(
-        speed_t=speed[:, 0].copy(),
-        speed_rpm=speed[:, 1].copy(),
-        torque_request_nm=speed[:, 2].copy(),
-        delta12_rad=speed[:, 3].copy(),
-        delta23_rad=speed[:, 4].copy(),
-        torque_t=torque[:, 0].copy(),
-        mean_torque_nm=torque[:, 1].copy(),
-        cylinder=torque[:, 2].astype(np.int64),
-        request_t=request_t,
-        test_torque_nm=request_nm,
-        parameters=parameters,
-        plan=plan,
-        options=options,
+    result = SimulationResult.from_outputs(
+        speed, torque, (request_t, request_nm), parameters, plan, options
     )
     stats = SolverStats(
         settings=settings,

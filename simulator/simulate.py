@@ -122,6 +122,45 @@ class SimulationResult:
     plan: TestPlan
     options: SimulationOptions
 
+    @classmethod
+    def from_outputs(
+        cls,
+        speed: np.ndarray,
+        torque: np.ndarray,
+        requests: tuple[np.ndarray, np.ndarray],
+        parameters: DrivetrainParameters,
+        plan: TestPlan,
+        options: SimulationOptions,
+    ) -> SimulationResult:
+        """Build a result from an integrator's outputs in the kernel's format.
+
+        Parameters
+        ----------
+        speed
+            (n, 5) speed events, columns :data:`simulator.kernel.SPEED_COLUMNS`.
+        torque
+            (m, 3) stroke events, columns :data:`simulator.kernel.TORQUE_COLUMNS`.
+        requests
+            The tool's request times, s, and values, N*m.
+        parameters, plan, options
+            What was simulated.
+        """
+        return cls(
+            speed_t=speed[:, 0].copy(),
+            speed_rpm=speed[:, 1].copy(),
+            torque_request_nm=speed[:, 2].copy(),
+            delta12_rad=speed[:, 3].copy(),
+            delta23_rad=speed[:, 4].copy(),
+            torque_t=torque[:, 0].copy(),
+            mean_torque_nm=torque[:, 1].copy(),
+            cylinder=torque[:, 2].astype(np.int64),
+            request_t=requests[0],
+            test_torque_nm=requests[1],
+            parameters=parameters,
+            plan=plan,
+            options=options,
+        )
+
 
 def substeps(params: np.ndarray, controller: IdleController) -> int:
     """Substeps per angle step that keep the explicit part of the integration stable.
@@ -210,22 +249,9 @@ def simulate(
         )
     if status != STATUS_OK:
         raise RuntimeError(f"simulator kernel ended with status {status}")
-    speed = out_speed[:n_speed]
-    torque = out_torque[:n_torque]
-    return SimulationResult(
-        speed_t=speed[:, 0].copy(),
-        speed_rpm=speed[:, 1].copy(),
-        torque_request_nm=speed[:, 2].copy(),
-        delta12_rad=speed[:, 3].copy(),
-        delta23_rad=speed[:, 4].copy(),
-        torque_t=torque[:, 0].copy(),
-        mean_torque_nm=torque[:, 1].copy(),
-        cylinder=torque[:, 2].astype(np.int64),
-        request_t=request_t,
-        test_torque_nm=request_nm,
-        parameters=parameters,
-        plan=plan,
-        options=options,
+    return SimulationResult.from_outputs(
+        out_speed[:n_speed], out_torque[:n_torque], (request_t, request_nm), parameters, plan,
+        options,
     )
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
 
@@ -136,11 +134,9 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
             n_sub, options.sigmas(), zeros_t, zeros_s, zeros_t, out_speed, out_torque,
         )
         assert status == 0
-        result = dataclasses.replace(
-            requests,
-            speed_t=out_speed[:n_speed, 0], speed_rpm=out_speed[:n_speed, 1],
-            torque_request_nm=out_speed[:n_speed, 2], torque_t=out_torque[:n_torque, 0],
-            mean_torque_nm=out_torque[:n_torque, 1],
+        result = SimulationResult.from_outputs(
+            out_speed[:n_speed], out_torque[:n_torque],
+            (requests.request_t, requests.test_torque_nm), reference, plan, options,
         )
         frfs.append(_frf(result))
     coherent = frfs[0].coherence > 0.9
