@@ -143,3 +143,9 @@ def test_inspect_a_real_log_through_an_example_map(tmp_path: Path, realdata: Pat
     assert report["roles"]["speed"]["count"] == 3645
     assert 750 <= report["roles"]["speed"]["min"] < report["roles"]["speed"]["max"] <= 2050
     assert report["missing_roles"] == ["test_torque"] and report["runs"] == []
+
+
+def test_demo_into_an_unwritable_place(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert "cannot create the output folder" in _error(capsys, ["demo", "--out", str(blocker / "x")])

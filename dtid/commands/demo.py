@@ -13,6 +13,7 @@ from pathlib import Path
 from acquisition.logfile import write_log
 from dbc.loader import load_interface
 from dtid.commands.common import write_json
+from dtid.errors import RecordingError
 from dtid.commands.frf import summary_line
 from identification.frf import estimate_frf
 from identification.plots import plot_frf
@@ -44,7 +45,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate, record, read back, estimate and show."""
-    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise RecordingError(f"cannot create the output folder {args.out}: {error.strerror}") from None
     parameters = reference_parameters()
     plan = TestPlan(amplitudes_nm=DEMO_AMPLITUDES_NM)
     interface = load_interface()

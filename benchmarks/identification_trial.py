@@ -1,0 +1,71 @@
+"""Identification trial (issue 3, in progress): accuracy and wall time on a simulated recording.
+
+Simulates the default three-amplitude test (2, 5, 10 N*m, 60 s chirps, realistic noise) of a
+truth, identifies the setup-4 parameters from the 5 and 10 N*m runs with the reference vehicle
+as prior (+-100 % bounds), validates on 2 N*m, and prints each parameter's error, the NRMSEs, the
+wall time and the number of simulated parameter sets. Not a test: nothing is asserted.
+
+    python benchmarks/identification_trial.py            # the reference vehicle as truth
+    python benchmarks/identification_trial.py --truth 1  # a truth drawn within +-40 % (seed 1)
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from identification.identify import SearchSettings, engine_gain, identify, split_runs
+from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
+from identification.start_values import start_theta
+from identification.test_setup import MeasuredTest
+from identification.testdata import from_simulation
+from simulator.parameters import DrivetrainParameters, reference_parameters
+from simulator.simulate import simulate
+
+TRUTH_SPREAD = 0.4
+"""Random truths lie within +-40 % of the reference (issue 3's accuracy trial)."""
+
+
+def draw_truth(index: int) -> DrivetrainParameters:
+    """The reference for index 0, else a truth within +-40 % of it (T_loss and K kept)."""
+    reference = reference_parameters()
+    if index == 0:
+        return reference
+    factors = np.random.default_rng(index).uniform(1 - TRUTH_SPREAD, 1 + TRUTH_SPREAD, 10)
+    return DrivetrainParameters.from_array(reference.as_array() * np.r_[factors, 1.0, 1.0])
+
+
+def main() -> None:
+    """Run one trial and print its figures."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--truth", type=int, default=0, help="0: reference; n: random truth n")
+    parser.add_argument("--generations", type=int, default=40)
+    parser.add_argument("--polish", type=int, default=400, help="Nelder-Mead evaluations")
+    args = parser.parse_args()
+
+    truth = draw_truth(args.truth)
+    measured = MeasuredTest.from_data(
+        "simulated", from_simulation(simulate(truth, seed=100 + args.truth)), 0.25
+    )
+    ident, valid = split_runs([measured])
+    prior = reference_parameters()
+    par = Parameterization.around(prior, measured.idle_torque_nm, engine_gain([measured]))
+    start = start_theta([measured.estimates[i] for i in ident[0]], prior)
+    settings = SearchSettings(generations=args.generations, polish_evaluations=args.polish)
+    result = identify([measured], par, ident, valid, settings, start=start)
+    true_theta = theta_from_parameters(truth)
+    print(
+        f"truth {args.truth}: {result.seconds:.1f} s wall, {result.parameter_sets} parameter "
+        f"sets ({result.objective_seconds:.1f} s in the objective)"
+    )
+    print(f"fit NRMSE {result.fit_nrmse}, validation NRMSE {result.validation_nrmse}")
+    for name in THETA_NAMES:
+        error = 100 * (result.theta[name] / true_theta[name] - 1)
+        print(
+            f"{name:>6} {result.theta[name]:10.4g} truth {true_theta[name]:10.4g} {error:+6.1f} %"
+        )
+
+
+if __name__ == "__main__":
+    main()
