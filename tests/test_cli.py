@@ -148,4 +148,5 @@ def test_inspect_a_real_log_through_an_example_map(tmp_path: Path, realdata: Pat
 def test_demo_into_an_unwritable_place(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("not a folder")
-    assert "cannot create the output folder" in _error(capsys, ["demo", "--out", str(blocker / "x")])
+    message = _error(capsys, ["demo", "--out", str(blocker / "x")])
+    assert "cannot create the output folder" in message

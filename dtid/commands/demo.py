@@ -13,8 +13,8 @@ from pathlib import Path
 from acquisition.logfile import write_log
 from dbc.loader import load_interface
 from dtid.commands.common import write_json
-from dtid.errors import RecordingError
 from dtid.commands.frf import summary_line
+from dtid.errors import RecordingError
 from identification.frf import estimate_frf
 from identification.plots import plot_frf
 from identification.recording import load_recording
@@ -48,7 +48,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
-        raise RecordingError(f"cannot create the output folder {args.out}: {error.strerror}") from None
+        raise RecordingError(
+            f"cannot create the output folder {args.out}: {error.strerror}"
+        ) from None
     parameters = reference_parameters()
     plan = TestPlan(amplitudes_nm=DEMO_AMPLITUDES_NM)
     interface = load_interface()
