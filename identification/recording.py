@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +13,8 @@ from acquisition.logfile import read_log
 from dbc.interface import RoleSeries, VehicleInterface
 from dtid.errors import AnalysisError
 from identification.testdata import Series, TestData
+
+logger = logging.getLogger(__name__)
 
 TIME_DECIMALS = 6
 TIME_RESOLUTION_S = 10.0**-TIME_DECIMALS
@@ -70,6 +73,26 @@ class Recording:
         )
 
 
+def _in_time_order(series: RoleSeries, start: float, path: Path) -> RoleSeries:
+    """The series with times from the recording's start, sorted (stably) if frames came late."""
+    t = np.round(series.timestamps - start, TIME_DECIMALS)
+    order = np.argsort(t, kind="stable")
+    if np.any(np.diff(t) < 0):
+        logger.warning(
+            "%s: %d frames of role '%s' arrive out of time order; sorted by timestamp",
+            path,
+            int(np.sum(np.diff(t) < 0)),
+            series.role,
+        )
+    return RoleSeries(
+        role=series.role,
+        timestamps=t[order],
+        values=series.values[order],
+        extra={key: value[order] for key, value in series.extra.items()},
+        n_bad=series.n_bad,
+    )
+
+
 def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) -> Recording:
     """Read and decode a CAN recording (.blf, .asc or candump .log).
 
@@ -86,16 +109,7 @@ def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) ->
     frames = read_log(path)
     start = frames[0].timestamp
     decoded = interface.decode(frames)
-    roles = {
-        role: RoleSeries(
-            role=series.role,
-            timestamps=np.round(series.timestamps - start, TIME_DECIMALS),
-            values=series.values,
-            extra=series.extra,
-            n_bad=series.n_bad,
-        )
-        for role, series in decoded.items()
-    }
+    roles = {role: _in_time_order(series, start, path) for role, series in decoded.items()}
     return Recording(
         path=path,
         n_frames=len(frames),

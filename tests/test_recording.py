@@ -10,7 +10,7 @@ import pytest
 from acquisition.logfile import write_log
 from dbc.loader import load_interface
 from identification.frf import FrfEstimate, estimate_frf
-from identification.recording import load_recording
+from identification.recording import _in_time_order, load_recording
 from identification.runs import find_runs
 from simulator.chirp import TestPlan
 from simulator.parameters import DrivetrainParameters
@@ -79,3 +79,22 @@ def test_a_second_dbc_via_its_map_gives_the_same_frf(
     for a, b in zip(_frfs(recordings[".blf"]), _frfs(path, dbc, signals), strict=True):
         np.testing.assert_allclose(a.drv_db, b.drv_db, atol=0.01)
         np.testing.assert_allclose(a.coherence, b.coherence, atol=1e-3)
+
+
+
+def test_frames_out_of_time_order_are_sorted(
+    short_test: SimulationResult, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A logger that wrote a speed frame late: the series is sorted, with a warning."""
+    interface = load_interface()
+    frames = simulation_frames(short_test, interface)
+    speed_id = interface.database.get_message_by_name("EngineSpeed").frame_id
+    first, second = [i for i, f in enumerate(frames) if f.arbitration_id == speed_id][100:102]
+    late = list(frames)
+    late[first], late[second] = late[second], late[first]
+    with caplog.at_level("WARNING"):
+        fixed = _in_time_order(interface.decode(late)["speed"], 0.0, Path("late.log"))
+    assert "out of time order" in caplog.text
+    expected = interface.decode(frames)["speed"]
+    np.testing.assert_array_equal(fixed.timestamps, np.round(expected.timestamps, 6))
+    np.testing.assert_array_equal(fixed.values, expected.values)
