@@ -1,0 +1,192 @@
+"""Profile likelihood (paper section IV-B, ref. [20], Raue et al. 2009).
+
+For one parameter, a grid of fixed values across its bounds (seven by default, as in Fig. 5);
+at each, all other free parameters are re-optimised, starting from the optimum and from
+randomised points (a small differential evolution seeded with both, then Nelder-Mead). The
+profile is the best objective per grid value.
+
+The objective (eq. 17) is a sum of NRMSEs, not a likelihood. Treating the dB residuals as
+Gaussian with a common variance estimated at the optimum, the likelihood-ratio statistic of a
+profile point is N_eff * ln(SSR / SSR_min), SSR = sum_a (NRMSE_a^2 * spread_a^2), with N_eff the
+number of independent frequency bins (Welch bins of a Hann window at half overlap are correlated
+over about ``BIN_CORRELATION`` neighbours). The 95 % confidence interval is where the statistic
+stays below the chi-square quantile with one degree of freedom (3.84).
+
+Verdicts: ``practical`` when the interval closes on both sides inside the bounds; ``structural``
+when the profile has a clear minimum but the interval stays open on a side (identifiable in
+principle, not by these data); ``no`` when the profile is flat (its rise over the grid is below
+the threshold everywhere).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, stats
+
+from identification.identify import Objective
+from identification.model_response import model_drv_db
+from identification.objective import nrmse
+from identification.parameterization import THETA_NAMES, Parameterization
+
+CONFIDENCE = 0.95
+THRESHOLD = float(stats.chi2.ppf(CONFIDENCE, df=1))
+"""Likelihood-ratio threshold of a 95 % interval for one parameter (3.84)."""
+BIN_CORRELATION = 1.5
+"""Welch bins per independent bin (Hann window, half overlap)."""
+
+
+@dataclass(frozen=True)
+class Profile:
+    """The profile of one parameter.
+
+    Attributes
+    ----------
+    name
+        Setup-4 parameter name.
+    values
+        Grid of fixed values, SI units.
+    objective
+        Best eq. (17) at each grid value.
+    statistic
+        Likelihood-ratio statistic at each grid value (0 at the optimum).
+    interval
+        (lower, upper) of the 95 % interval, None on a side where it does not close.
+    verdict
+        ``practical``, ``structural`` or ``no`` (see the module notes).
+    """
+
+    name: str
+    values: np.ndarray
+    objective: np.ndarray
+    statistic: np.ndarray
+    interval: tuple[float | None, float | None]
+    verdict: str
+
+
+def statistic(ssr: np.ndarray, ssr_min: float, n_eff: float) -> np.ndarray:
+    """Likelihood-ratio statistic N_eff * ln(SSR / SSR_min) of Gaussian residuals."""
+    return n_eff * np.log(np.maximum(ssr, ssr_min) / ssr_min)
+
+
+def _interval_and_verdict(
+    values: np.ndarray, stat: np.ndarray, best_value: float
+) -> tuple[tuple[float | None, float | None], str]:
+    """Where the statistic crosses the threshold on each side of the optimum."""
+    below, above = values <= best_value, values >= best_value
+    lower = upper = None
+    left = np.flatnonzero(below & (stat > THRESHOLD))
+    if len(left):  # interpolate the crossing between the last rejected and the next point
+        i = left[-1]
+        lower = float(np.interp(THRESHOLD, [stat[i + 1], stat[i]], [values[i + 1], values[i]]))
+    right = np.flatnonzero(above & (stat > THRESHOLD))
+    if len(right):
+        i = right[0]
+        upper = float(np.interp(THRESHOLD, [stat[i - 1], stat[i]], [values[i - 1], values[i]]))
+    if lower is not None and upper is not None:
+        return (lower, upper), "practical"
+    if lower is not None or upper is not None:
+        return (lower, upper), "structural"
+    return (None, None), "no"
+
+
+def profile(
+    objective: Objective,
+    measured_db: Sequence[np.ndarray],
+    name: str,
+    optimum_unit: np.ndarray,
+    points: int = 7,
+    generations: int = 8,
+    popsize: int = 4,
+    polish_evaluations: int = 120,
+    seed: int = 0,
+) -> Profile:
+    """Profile one free parameter around an identified optimum.
+
+    Parameters
+    ----------
+    objective
+        Eq. (17) over the identification runs (as :func:`identification.identify.identify`
+        builds it).
+    measured_db
+        The measured |G_DRV| in dB of every identification run, in the objective's order (for the
+        likelihood statistic).
+    name
+        Free parameter to profile.
+    optimum_unit
+        The optimum, normalised free values.
+    points
+        Grid points across the parameter's bounds.
+    generations, popsize, polish_evaluations, seed
+        Budget and seed of each re-optimisation.
+    """
+    par: Parameterization = objective.parameterization
+    free = list(par.free)
+    k = free.index(name)
+    index = THETA_NAMES.index(name)
+    grid_unit = np.linspace(0.0, 1.0, points)
+    others = [i for i in range(len(free)) if i != k]
+    best_objective = np.empty(points)
+    best_ssr = np.empty(points)
+    rng = np.random.default_rng(seed)
+    for p, u in enumerate(grid_unit):
+
+        def fixed(rest: np.ndarray, u: float = u) -> np.ndarray:
+            full = np.empty((rest.shape[0], len(free)))
+            full[:, others] = rest
+            full[:, k] = u
+            return full
+
+        if others:
+            members = max(5, popsize * len(others))  # scipy needs five at least
+            population = rng.uniform(size=(members, len(others)))
+            population[0] = optimum_unit[others]
+            result = optimize.differential_evolution(
+                lambda r: objective(fixed(r.T)),
+                [(0.0, 1.0)] * len(others),
+                maxiter=generations,
+                seed=seed + p,
+                vectorized=True,
+                updating="deferred",
+                polish=False,
+                init=population,
+            )
+            polished = optimize.minimize(
+                lambda r: float(objective(fixed(r[None]))[0]),
+                result.x,
+                method="Nelder-Mead",
+                bounds=[(0.0, 1.0)] * len(others),
+                options={"maxfev": polish_evaluations},
+            )
+            rest = polished.x if polished.fun <= result.fun else result.x
+        else:
+            rest = np.zeros(0)
+        best_objective[p], best_ssr[p] = _objective_and_ssr(
+            objective, measured_db, fixed(rest[None])
+        )
+    _, ssr_at_optimum = _objective_and_ssr(objective, measured_db, optimum_unit[None])
+    ssr_min = min(ssr_at_optimum, float(best_ssr.min()))
+    n_eff = sum(len(m) for m in measured_db) / BIN_CORRELATION
+    stat = statistic(best_ssr, ssr_min, n_eff)
+    values = par.lower[index] + grid_unit * (par.upper[index] - par.lower[index])
+    best_value = float(par.theta(optimum_unit[None])[0, index])
+    interval, verdict = _interval_and_verdict(values, stat, best_value)
+    return Profile(name, values, best_objective, stat, interval, verdict)
+
+
+def _objective_and_ssr(
+    objective: Objective, measured_db: Sequence[np.ndarray], unit: np.ndarray
+) -> tuple[float, float]:
+    """Eq. (17) and the sum of squared dB residuals of one normalised parameter set."""
+    params = objective.parameterization.parameters(unit)
+    total, ssr = 0.0, 0.0
+    measured = iter(measured_db)
+    for test in objective.tests:
+        for model in model_drv_db(params, test):
+            data = next(measured)
+            error = float(nrmse(data, model)[0])
+            total += error
+            ssr += error**2 * float(np.sum((data - data.mean()) ** 2))
+    return total, ssr
