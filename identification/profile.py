@@ -47,9 +47,10 @@ class Profile:
     name
         Setup-4 parameter name.
     values
-        Grid of fixed values, SI units.
+        Fixed values evaluated, ascending, SI units: the grid, the optimum and the points that
+        locate the interval's ends.
     objective
-        Best eq. (17) at each grid value.
+        Best eq. (17) at each value.
     statistic
         Likelihood-ratio statistic at each grid value (0 at the optimum).
     interval
@@ -102,6 +103,7 @@ def profile(
     popsize: int = 4,
     polish_evaluations: int = 120,
     seed: int = 0,
+    refine: int = 4,
 ) -> Profile:
     """Profile one free parameter around an identified optimum.
 
@@ -121,24 +123,27 @@ def profile(
         Grid points across the parameter's bounds.
     generations, popsize, polish_evaluations, seed
         Budget and seed of each re-optimisation.
+    refine
+        Bisection steps on each side's threshold crossing (the grid alone shows the profile's
+        shape, as Fig. 5; an interval needs its ends located more finely).
     """
     par: Parameterization = objective.parameterization
     free = list(par.free)
     k = free.index(name)
     index = THETA_NAMES.index(name)
-    grid_unit = np.linspace(0.0, 1.0, points)
     others = [i for i in range(len(free)) if i != k]
-    best_objective = np.empty(points)
-    best_ssr = np.empty(points)
     rng = np.random.default_rng(seed)
-    for p, u in enumerate(grid_unit):
 
-        def fixed(rest: np.ndarray, u: float = u) -> np.ndarray:
+    def point(u: float) -> tuple[float, float]:
+        """Best objective and SSR with the parameter fixed at normalised value u."""
+
+        def fixed(rest: np.ndarray) -> np.ndarray:
             full = np.empty((rest.shape[0], len(free)))
             full[:, others] = rest
             full[:, k] = u
             return full
 
+        rest = np.zeros(0)
         if others:
             members = max(5, popsize * len(others))  # scipy needs five at least
             population = rng.uniform(size=(members, len(others)))
@@ -147,7 +152,7 @@ def profile(
                 lambda r: objective(fixed(r.T)),
                 [(0.0, 1.0)] * len(others),
                 maxiter=generations,
-                seed=seed + p,
+                seed=int(rng.integers(2**31)),
                 vectorized=True,
                 updating="deferred",
                 polish=False,
@@ -161,15 +166,35 @@ def profile(
                 options={"maxfev": polish_evaluations},
             )
             rest = polished.x if polished.fun <= result.fun else result.x
-        else:
-            rest = np.zeros(0)
-        best_objective[p], best_ssr[p] = _objective_and_ssr(
-            objective, measured_db, fixed(rest[None])
-        )
-    _, ssr_at_optimum = _objective_and_ssr(objective, measured_db, optimum_unit[None])
-    ssr_min = min(ssr_at_optimum, float(best_ssr.min()))
+        return _objective_and_ssr(objective, measured_db, fixed(rest[None]))
+
+    best_u = float(optimum_unit[k])
+    at_optimum = _objective_and_ssr(objective, measured_db, optimum_unit[None])
+    evaluated = {best_u: at_optimum, **{float(u): point(u) for u in np.linspace(0, 1, points)}}
     n_eff = sum(len(m) for m in measured_db) / BIN_CORRELATION
-    stat = statistic(best_ssr, ssr_min, n_eff)
+
+    def stat_of(u: float) -> float:
+        ssr_min = min(ssr for _, ssr in evaluated.values())
+        return float(statistic(np.array(evaluated[u][1]), ssr_min, n_eff))
+
+    for side in (-1, 1):  # bisect each side's threshold crossing
+        for _ in range(refine):
+            us = sorted(u for u in evaluated if (u - best_u) * side > 0)
+            rejected = [u for u in us if stat_of(u) > THRESHOLD]
+            if not rejected:
+                break
+            outer = rejected[0] if side > 0 else rejected[-1]
+            inner = (
+                max((u for u in evaluated if best_u <= u < outer), default=best_u)
+                if side > 0
+                else min((u for u in evaluated if outer < u <= best_u), default=best_u)
+            )
+            evaluated[0.5 * (inner + outer)] = point(0.5 * (inner + outer))
+
+    grid_unit = np.array(sorted(evaluated))
+    best_objective = np.array([evaluated[u][0] for u in grid_unit])
+    ssr = np.array([evaluated[u][1] for u in grid_unit])
+    stat = statistic(ssr, float(ssr.min()), n_eff)
     values = par.lower[index] + grid_unit * (par.upper[index] - par.lower[index])
     best_value = float(par.theta(optimum_unit[None])[0, index])
     interval, verdict = _interval_and_verdict(values, stat, best_value)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identification.identify import Objective, engine_gain, split_runs
+from identification.identify import Objective, SearchSettings, engine_gain, identify, split_runs
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
 from identification.profile import THRESHOLD, _interval_and_verdict, profile
 from identification.test_setup import MeasuredTest
@@ -59,3 +59,30 @@ def test_profiles_tell_identifiable_from_decoupled(decoupled: tuple) -> None:
     assert lower < truth.c12 < upper and upper - lower < 0.5 * truth.c12
     assert play.verdict == "no"  # J3 is decoupled: its gear play cannot matter
     assert np.ptp(play.objective) < 1e-6
+
+
+@pytest.mark.slow
+def test_interval_contains_the_truth_on_noisy_data(reference: DrivetrainParameters) -> None:
+    """Realistic noise: identify c12 and d12, then the 95 % profile interval holds the truth."""
+    truth = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0, c23=0.0, d23=0.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    measured = MeasuredTest.from_data(
+        "noisy", from_simulation(simulate(truth, plan, SimulationOptions(), seed=4)), 0.25
+    )
+    theta = theta_from_parameters(truth)
+    fixed = {n: theta[n] for n in THETA_NAMES if n not in ("c12", "d12")}
+    par = Parameterization.around(truth, measured.idle_torque_nm, engine_gain([measured]), fixed)
+    ident, valid = split_runs([measured])
+    result = identify(
+        [measured], par, ident, valid,
+        SearchSettings(popsize=6, generations=10, polish_evaluations=60),
+    )
+    test = measured.model_test(ident[0])
+    measured_db = [measured.estimates[i].drv_db for i in ident[0]]
+    stiffness = profile(
+        Objective(par, [test], [measured_db]), measured_db, "c12", result.unit,
+        points=5, generations=3, popsize=4, polish_evaluations=30,
+    )
+    lower, upper = stiffness.interval
+    assert stiffness.verdict == "practical"
+    assert lower < truth.c12 < upper
