@@ -36,6 +36,8 @@ MAX_GAP_SAMPLES = 5
 """A run whose speed has a gap longer than this many sample intervals is refused."""
 MIN_SEGMENTS = 2
 """A run must hold at least this many Welch segments."""
+GAIN_COHERENCE = 0.8
+"""K (eq. 24) averages |G_ENG| over the bins at least this coherent."""
 
 
 @dataclass(frozen=True)
@@ -86,8 +88,13 @@ class FrfEstimate:
 
     @property
     def engine_gain(self) -> float:
-        """K of eq. (24): mean of |G_ENG| over the band (NaN without a torque request)."""
-        return float(np.mean(self.eng))
+        """K of eq. (24): mean of |G_ENG| over the band (NaN without a torque request).
+
+        Bins whose coherence is below :data:`GAIN_COHERENCE` are left out (all are used if none
+        reaches it): there |G_ENG| is noise, and a few such bins move the mean by tens of %.
+        """
+        trusted = self.coherence >= GAIN_COHERENCE
+        return float(np.mean(self.eng[trusted] if trusted.any() else self.eng))
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready entry: the run, the grid and the magnitudes in dB."""
@@ -188,9 +195,10 @@ def estimate_frf(
         )
     speed_rpm = float(np.mean(speed.value))
     torque_nyquist = 0.5 * rate / 2
-    if band_hz is None:  # the sweep less half a bin at each end, clipped below the torque Nyquist
-        lo = run.f1_hz + 0.5 * resolution_hz
-        hi = min(run.f2_hz - 0.5 * resolution_hz, 0.98 * torque_nyquist)
+    if band_hz is None:  # the sweep less its edges (below), clipped below the torque Nyquist
+        edge = sweep_edge_hz(run, resolution_hz)
+        lo = min(run.f1_hz, run.f2_hz) + edge
+        hi = min(max(run.f1_hz, run.f2_hz) - edge, 0.98 * torque_nyquist)
     else:
         lo, hi = band_hz
     sweep_lo, sweep_hi = sorted((run.f1_hz, run.f2_hz))
@@ -227,6 +235,17 @@ def estimate_frf(
     else:
         eng = np.full_like(f, np.nan)
     return FrfEstimate(run, f, drv, eng, coherence, speed_rpm, rate, len(grid), nperseg)
+
+
+def sweep_edge_hz(run: ChirpRun, resolution_hz: float) -> float:
+    """Width at each end of a chirp's sweep that no Welch segment covers fully, Hz.
+
+    A segment lasts 1/resolution; near the sweep's ends only part of one sees those frequencies
+    (and the window tapers it), so their estimate is poor. That is half a segment's worth of
+    sweep, and at least half a bin: 0.47 Hz for the default 60 s chirp from 1 to 15 Hz.
+    """
+    sweep_rate = abs(run.f2_hz - run.f1_hz) / run.duration_s
+    return max(0.5 * resolution_hz, 0.5 * sweep_rate / resolution_hz)
 
 
 def _welch_settings(rate: float, nperseg: int) -> dict[str, object]:

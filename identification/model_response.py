@@ -7,10 +7,10 @@ estimator's own biases (the engine's torque hold, Welch's sweep-rate bias) cance
 
 "The same test signals" is taken literally: the model replays the recording's own test-torque
 requests. Beyond the paper, the model predicts the *expected* response: with DMF free play the
-response near the resonance jump is chaotic (a 1e-6 change of J1 or 0.04 rpm of set-point moves a
-single run's NRMSE by up to 0.08 at 10 N*m, on the reference vehicle), so one simulated run is as
-much a random draw as the measured one, and an objective built on single runs has no reliable
-minimum at the true parameters. Each parameter set is therefore simulated in ``realizations``
+response near the resonance jump is sensitive to the smallest perturbation (on the reference
+vehicle a set-point 0.04 rpm off moves a single run's NRMSE by 0.08 at 10 N*m, where a 1 % change
+of c12 moves it by 0.012), so one simulated run is as much a random draw as the measured one.
+Each parameter set is therefore simulated in ``realizations``
 runs with the cycle-to-cycle combustion variation measured on the vehicle (the same draws for
 every set, so the objective stays deterministic), and the cross-spectra are averaged over them
 before |G_DRV| is formed, as longer Welch averaging would. Since the state a chirp starts from is

@@ -74,3 +74,55 @@ def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = ""
     finally:
         plt.close(figure)
     return path
+
+
+def plot_fit(
+    measured: Sequence[FrfEstimate],
+    model_db: Sequence[np.ndarray],
+    roles: Sequence[str],
+    path: str | Path,
+    title: str = "",
+) -> Path:
+    """Save measured and identified |G_DRV| per run, as the paper's Fig. 6.
+
+    Parameters
+    ----------
+    measured
+        Measured FRF of each run.
+    model_db
+        The identified model's |G_DRV| in dB on each run's grid.
+    roles
+        ``"fit"`` or ``"validation"`` per run (validation runs are drawn dashed).
+    path
+        Output file; the format follows its suffix.
+    title
+        Figure title.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    figure, axis = plt.subplots(figsize=(8, 5))
+    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(len(measured), 1)))
+    for estimate, db, role, colour in zip(measured, model_db, roles, colours, strict=True):
+        label = f"{estimate.run.amplitude_nm:g} N*m ({role})"
+        axis.plot(estimate.frequency_hz, estimate.drv_db, color=colour, linewidth=0.8, alpha=0.6)
+        axis.plot(
+            estimate.frequency_hz, db, color=colour, linewidth=2,
+            linestyle="--" if role == "validation" else "-", label=label,
+        )
+    axis.set_xlabel("frequency / Hz")
+    axis.set_ylabel("|G_DRV| / dB re 1 (rad/s)/(N*m)")
+    axis.set_title(title or "Measured (thin) and identified (thick) frequency responses")
+    axis.grid(True, alpha=0.3)
+    axis.legend(fontsize="small")
+    figure.tight_layout()
+    try:
+        figure.savefig(path, dpi=110)
+    except (OSError, ValueError) as error:
+        raise RecordingError(f"cannot write the plot {path}: {error}") from None
+    finally:
+        plt.close(figure)
+    return path

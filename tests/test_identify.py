@@ -56,18 +56,11 @@ def test_linear_stiffness_and_damping_recovered(reference: DrivetrainParameters)
     data = from_simulation(simulate(truth, plan, SimulationOptions.clean()))
     measured = MeasuredTest.from_data("linear", data, 0.25)
     result = _identify_two(linear, truth, measured, ("c12", "d12"))
-    assert result.theta["c12"] == pytest.approx(truth.c12, rel=0.02)
-    assert result.theta["d12"] == pytest.approx(truth.d12, rel=0.1)  # the shallowest profile
-    # the set-point is estimated from the idle speed (0.02 rpm off here); the deep anti-resonance
-    # bins move by dB with the operating point, which leaves a fit NRMSE of a few hundredths
-    assert max(result.fit_nrmse.values()) < 0.1
+    assert result.theta["c12"] == pytest.approx(truth.c12, rel=1e-3)
+    assert result.theta["d12"] == pytest.approx(truth.d12, rel=1e-2)  # the shallowest profile
+    assert max(result.fit_nrmse.values()) < 0.01
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="open (issue 3): with DMF free play the single-realisation objective is chaotic; a "
-    "set-point 0.04 rpm off already costs NRMSE 0.44 at the truth, so its minimum is not there",
-)
 def test_stiffness_and_play_recovered_with_the_rest_fixed(
     reference: DrivetrainParameters, softer_dmf: tuple
 ) -> None:

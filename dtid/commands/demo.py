@@ -55,9 +55,11 @@ def run(args: argparse.Namespace) -> int:
     plan = TestPlan(amplitudes_nm=DEMO_AMPLITUDES_NM)
     interface = load_interface()
     low, high = three_mass_modes(parameters)
-    print(f"reference vehicle: linear modes {low:.1f} and {high:.1f} Hz; simulating "
-          f"{plan.end_s:.0f} s of chirp test at {', '.join(f'{a:g}' for a in plan.amplitudes_nm)}"
-          " N*m ...")
+    print(
+        f"reference vehicle: linear modes {low:.1f} and {high:.1f} Hz; simulating "
+        f"{plan.end_s:.0f} s of chirp test at {', '.join(f'{a:g}' for a in plan.amplitudes_nm)}"
+        " N*m ..."
+    )
     result = simulate(parameters, plan, seed=args.seed)
     recording = args.out / f"reference-seed{args.seed}.blf"
     count = write_log(recording, simulation_frames(result, interface), overwrite=True)
@@ -66,9 +68,10 @@ def run(args: argparse.Namespace) -> int:
     estimates = [estimate_frf(data, run) for run in find_runs(data.test_torque)]
     for estimate in estimates:
         print(summary_line(estimate))
-    write_json(args.out / "frf.json", {
-        "runs": [{"recording": str(recording), **e.as_dict()} for e in estimates]
-    })
+    write_json(
+        args.out / "frf.json",
+        {"runs": [{"recording": str(recording), **e.as_dict()} for e in estimates]},
+    )
     plot = plot_frf(estimates, args.out / "frf.png", "Reference vehicle, simulated (Fig. 3)")
     print(f"FRF: {args.out / 'frf.json'}, plot: {plot}")
     return 0

@@ -28,11 +28,16 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--json", type=Path, help="write the FRFs as JSON")
     parser.add_argument("--plot", type=Path, help="plot |G_DRV| per amplitude (Fig. 3)")
     parser.add_argument(
-        "--resolution", type=positive_float, default=DEFAULT_RESOLUTION_HZ,
+        "--resolution",
+        type=positive_float,
+        default=DEFAULT_RESOLUTION_HZ,
         help="Welch frequency resolution in Hz (default: %(default)s)",
     )
     parser.add_argument(
-        "--band", type=positive_float, nargs=2, metavar=("F1", "F2"),
+        "--band",
+        type=positive_float,
+        nargs=2,
+        metavar=("F1", "F2"),
         help="frequency band in Hz (default: each chirp's sweep)",
     )
     add_interface_options(parser)
@@ -79,9 +84,9 @@ def run(args: argparse.Namespace) -> int:
     for _, estimate in results:
         print(summary_line(estimate))
     if args.json:
-        write_json(args.json, {
-            "runs": [{"recording": str(path), **e.as_dict()} for path, e in results]
-        })
+        write_json(
+            args.json, {"runs": [{"recording": str(path), **e.as_dict()} for path, e in results]}
+        )
     if args.plot:
         from identification.plots import plot_frf
 

@@ -70,13 +70,14 @@ def _fmt(value: object, spec: str) -> str:
 def run(args: argparse.Namespace) -> int:
     """Print (and optionally save) the report."""
     document = report(load_recording(args.recording, load_interface(args.dbc, args.signals)))
-    print(f"{document['recording']}: {document['frames']} frames, "
-          f"{document['duration_s']:.1f} s")
+    print(f"{document['recording']}: {document['frames']} frames, {document['duration_s']:.1f} s")
     print(f"{'role':<16}{'count':>8}{'rate/Hz':>10}{'min':>12}{'max':>12}{'max gap/s':>11}")
     for role, s in document["roles"].items():
-        print(f"{role:<16}{s['count']:>8}{_fmt(s['rate_hz'], '.1f'):>10}"
-              f"{_fmt(s['min'], '.2f'):>12}{_fmt(s['max'], '.2f'):>12}"
-              f"{_fmt(s['max_gap_s'], '.3f'):>11}")
+        print(
+            f"{role:<16}{s['count']:>8}{_fmt(s['rate_hz'], '.1f'):>10}"
+            f"{_fmt(s['min'], '.2f'):>12}{_fmt(s['max'], '.2f'):>12}"
+            f"{_fmt(s['max_gap_s'], '.3f'):>11}"
+        )
         if s["count"] == 0:
             print(f"  no frame of {role}'s message in this recording: wrong DBC or signal map?")
         if s["bad_frames"]:
@@ -86,8 +87,10 @@ def run(args: argparse.Namespace) -> int:
     if not document["runs"]:
         print("no chirp runs (the test torque is zero or absent)")
     for run in document["runs"]:
-        print(f"chirp {run['start_s']:.1f}-{run['end_s']:.1f} s: {run['amplitude_nm']:.2f} N*m, "
-              f"{run['f1_hz']:.2f} -> {run['f2_hz']:.2f} Hz")
+        print(
+            f"chirp {run['start_s']:.1f}-{run['end_s']:.1f} s: {run['amplitude_nm']:.2f} N*m, "
+            f"{run['f1_hz']:.2f} -> {run['f2_hz']:.2f} Hz"
+        )
     if args.json:
         write_json(args.json, document)
     return 0

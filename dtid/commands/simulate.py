@@ -31,8 +31,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--params", type=Path, help="parameter set (TOML; default: the reference vehicle)"
     )
     parser.add_argument(
-        "--amplitudes", type=positive_float, nargs="+", default=list(_DEFAULTS.amplitudes_nm),
-        metavar="NM", help="chirp amplitudes in N*m, one chirp each (default: %(default)s)",
+        "--amplitudes",
+        type=positive_float,
+        nargs="+",
+        default=list(_DEFAULTS.amplitudes_nm),
+        metavar="NM",
+        help="chirp amplitudes in N*m, one chirp each (default: %(default)s)",
     )
     parser.add_argument("--f1", type=positive_float, default=_DEFAULTS.f1_hz, help="start Hz")
     parser.add_argument("--f2", type=positive_float, default=_DEFAULTS.f2_hz, help="end Hz")
@@ -40,7 +44,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--duration", type=positive_float, default=_DEFAULTS.duration_s, help="seconds per chirp"
     )
     parser.add_argument(
-        "--setpoint", type=positive_float, default=IdleController().setpoint_rpm,
+        "--setpoint",
+        type=positive_float,
+        default=IdleController().setpoint_rpm,
         help="idle speed set-point, rpm",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and combustion")
@@ -56,7 +62,9 @@ def run(args: argparse.Namespace) -> int:
     """Simulate and write the recording."""
     parameters = load_parameters(args.params) if args.params else reference_parameters()
     plan = TestPlan(
-        amplitudes_nm=tuple(args.amplitudes), f1_hz=args.f1, f2_hz=args.f2,
+        amplitudes_nm=tuple(args.amplitudes),
+        f1_hz=args.f1,
+        f2_hz=args.f2,
         duration_s=args.duration,
     )
     controller = IdleController(setpoint_rpm=args.setpoint)
@@ -68,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
     interface = load_interface(args.dbc, args.signals)
     result = simulate(parameters, plan, options, seed=args.seed)
     count = write_log(args.output, simulation_frames(result, interface), overwrite=args.force)
-    print(f"wrote {args.output}: {count} frames, {plan.end_s:.0f} s, chirps at "
-          f"{', '.join(f'{a:g}' for a in plan.amplitudes_nm)} N*m")
+    print(
+        f"wrote {args.output}: {count} frames, {plan.end_s:.0f} s, chirps at "
+        f"{', '.join(f'{a:g}' for a in plan.amplitudes_nm)} N*m"
+    )
     return 0
