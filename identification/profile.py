@@ -177,6 +177,9 @@ def profile(
         ssr_min = min(ssr for _, ssr in evaluated.values())
         return float(statistic(np.array(evaluated[u][1]), ssr_min, n_eff))
 
+    # the profile's own minimum centres the interval: where a grid point beat the identified
+    # optimum, the search had not found the global minimum
+    best_u = min(evaluated, key=lambda u: evaluated[u][1])
     for side in (-1, 1):  # bisect each side's threshold crossing
         for _ in range(refine):
             us = sorted(u for u in evaluated if (u - best_u) * side > 0)
@@ -196,8 +199,7 @@ def profile(
     ssr = np.array([evaluated[u][1] for u in grid_unit])
     stat = statistic(ssr, float(ssr.min()), n_eff)
     values = par.lower[index] + grid_unit * (par.upper[index] - par.lower[index])
-    best_value = float(par.theta(optimum_unit[None])[0, index])
-    interval, verdict = _interval_and_verdict(values, stat, best_value)
+    interval, verdict = _interval_and_verdict(values, stat, float(values[np.argmin(ssr)]))
     return Profile(name, values, best_objective, stat, interval, verdict)
 
 

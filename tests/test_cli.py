@@ -150,3 +150,28 @@ def test_demo_into_an_unwritable_place(tmp_path: Path, capsys: pytest.CaptureFix
     blocker.write_text("not a folder")
     message = _error(capsys, ["demo", "--out", str(blocker / "x")])
     assert "cannot create the output folder" in message
+
+
+def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
+    out, plot = tmp_path / "identify.json", tmp_path / "fit.png"
+    fix = ["J_sum=0.28", "x1=0.625", "x12=0.857", "c23=80", "d23=0.3", "Tc12=0.3", "eps23=0.012",
+           "eps12=0.02"]
+    argv = ["identify", str(recording), "--fix", *fix, "--generations", "2",
+            "--profile-points", "3", "--json", str(out), "--plot", str(plot)]
+    assert main(argv) == 0
+    document = json.loads(out.read_text())
+    names = {"J_sum", "x1", "x12", "c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23"}
+    assert set(document["parameters"]) == names | {"J1", "J2", "J3", "K"}
+    assert set(document["intervals"]) == {"c12", "d12"}  # the free ones
+    for interval in document["intervals"].values():
+        assert set(interval) == {"lower", "upper"}
+    assert set(document["identifiable"].values()) <= {"structural", "practical", "no"}
+    assert set(document["nrmse"]) == {"fit", "validation"}
+    assert len(document["nrmse"]["fit"]) == 2  # 5 and 10 N*m identify
+    assert document["parameters"]["K"] == pytest.approx(0.9, rel=0.03)
+    assert plot.stat().st_size > 10_000
+
+
+def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert "expected NAME=VALUE" in _error(capsys, ["identify", str(recording), "--fix", "J9=1"])
+    assert "is not a number" in _error(capsys, ["identify", str(recording), "--fix", "c12=stiff"])

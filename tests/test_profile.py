@@ -86,3 +86,10 @@ def test_interval_contains_the_truth_on_noisy_data(reference: DrivetrainParamete
     lower, upper = stiffness.interval
     assert stiffness.verdict == "practical"
     assert lower < truth.c12 < upper
+
+
+def test_interval_is_ordered_when_the_minimum_is_off_the_optimum() -> None:
+    values = np.linspace(0, 6, 7)
+    stat = np.array([9.0, 5.0, 0.0, 1.0, 2.0, 5.0, 9.0])  # minimum at 2
+    (lower, upper), verdict = _interval_and_verdict(values, stat, 2.0)
+    assert verdict == "practical" and lower < 2.0 < upper
