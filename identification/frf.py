@@ -56,6 +56,9 @@ class FrfEstimate:
         |G_ENG| of eq. (15), 1; NaN where the recording has no torque request.
     coherence
         min(gamma^2_zx, gamma^2_zy), 1.
+    req
+        |S_zy / S_zu| / |G_n|: speed per requested torque T_ecu, (rad/s)/(N*m), the engine gain
+        K included (the input of eq. 18 and setup 1); NaN without a torque request.
     speed_rpm
         Mean engine speed over the run, rpm (the speed the sensor corrections use).
     sample_rate_hz
@@ -71,6 +74,7 @@ class FrfEstimate:
     drv: np.ndarray
     eng: np.ndarray
     coherence: np.ndarray
+    req: np.ndarray
     speed_rpm: float
     sample_rate_hz: float
     n_events: int
@@ -80,6 +84,11 @@ class FrfEstimate:
     def drv_db(self) -> np.ndarray:
         """20 log10 |G_DRV|, dB re 1 (rad/s)/(N*m)."""
         return 20 * np.log10(self.drv)
+
+    @property
+    def req_db(self) -> np.ndarray:
+        """20 log10 of the speed response to the torque request, dB re 1 (rad/s)/(N*m)."""
+        return 20 * np.log10(self.req)
 
     @property
     def eng_db(self) -> np.ndarray:
@@ -232,9 +241,10 @@ def estimate_frf(
         u = _hold(data.torque_request, grid)
         _, s_zu = signal.csd(z, u, **welch)
         eng = np.abs(s_zx / s_zu[keep]) / torque_hold_gain(f, speed_rpm)
+        req = request_magnitude(f, s_zy, s_zu[keep], speed_rpm)
     else:
-        eng = np.full_like(f, np.nan)
-    return FrfEstimate(run, f, drv, eng, coherence, speed_rpm, rate, len(grid), nperseg)
+        eng = req = np.full_like(f, np.nan)
+    return FrfEstimate(run, f, drv, eng, coherence, req, speed_rpm, rate, len(grid), nperseg)
 
 
 def sweep_edge_hz(run: ChirpRun, resolution_hz: float) -> float:
@@ -276,6 +286,16 @@ def cross_spectra(
     frequency, s_zy = signal.csd(z, y, **welch)
     _, s_zx = signal.csd(z, x, **welch)
     return frequency, s_zy, s_zx
+
+
+def request_magnitude(
+    frequency_hz: np.ndarray, s_zy: np.ndarray, s_zu: np.ndarray, speed_rpm: float | np.ndarray
+) -> np.ndarray:
+    """|G| from the torque request T_ecu to the speed, (rad/s)/(N*m): K times the plant.
+
+    T_ecu is sampled at every crank event without a hold, so only the speed filter is corrected.
+    """
+    return np.abs(s_zy / s_zu) / speed_filter_gain(frequency_hz, speed_rpm)
 
 
 def drivetrain_magnitude(

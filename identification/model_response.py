@@ -24,7 +24,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identification.frf import FrfEstimate, cross_spectra, drivetrain_magnitude
+from identification.frf import (
+    FrfEstimate,
+    cross_spectra,
+    drivetrain_magnitude,
+    request_magnitude,
+)
 from identification.testdata import Series
 from simulator.controller import IdleController
 from simulator.simulate import BatchResult, SimulationOptions, replay_batch
@@ -55,6 +60,9 @@ class ModelTest:
         Runs per parameter set; with no combustion variation one run is enough.
     seed
         Seed of the variation's draws (the same for every parameter set).
+    input
+        ``"torque"``: |G_DRV| of eq. (14), from the measured mean torque; ``"request"``: from the
+        torque request T_ecu, the engine gain K included (setup 1).
     """
 
     requests: Series
@@ -63,6 +71,7 @@ class ModelTest:
     combustion_variation: float = 0.0
     realizations: int = DEFAULT_REALIZATIONS
     seed: int = 0
+    input: str = "torque"
     options: SimulationOptions = field(init=False)
     offset_s: float = field(init=False)
     replay: Series = field(init=False)
@@ -125,6 +134,7 @@ def _run_db(batch: BatchResult, estimate: FrfEstimate, test: ModelTest, n_sets: 
     requests, start_s = test.replay, estimate.run.start_s - test.offset_s
     n_jobs, length = len(batch.status), estimate.n_events
     y, x, z = (np.zeros((n_jobs, length)) for _ in range(3))
+    from_request = test.input == "request"
     rate = np.ones(n_jobs)
     ok = np.zeros(n_jobs, dtype=bool)
     for job in np.flatnonzero(batch.status == 0):
@@ -137,7 +147,7 @@ def _run_db(batch: BatchResult, estimate: FrfEstimate, test: ModelTest, n_sets: 
         held_torque = np.clip(np.searchsorted(torque[:, 0], t, side="right") - 1, 0, None)
         held_request = np.searchsorted(requests.t, t, side="right") - 1
         y[job] = speed[first : first + length, 1]
-        x[job] = torque[held_torque, 1]
+        x[job] = speed[first : first + length, 2] if from_request else torque[held_torque, 1]
         z[job] = np.where(held_request >= 0, requests.value[held_request], 0.0)
         rate[job] = 1.0 / np.median(np.diff(t))
         ok[job] = True
@@ -152,7 +162,8 @@ def _run_db(batch: BatchResult, estimate: FrfEstimate, test: ModelTest, n_sets: 
             continue  # a realisation that cannot idle fails the set
         rate_hz = rate[jobs].mean()  # the set's mean event rate sets its frequency axis
         frequency = unit_frequency * rate_hz
-        magnitude = drivetrain_magnitude(
+        response = request_magnitude if from_request else drivetrain_magnitude
+        magnitude = response(
             frequency, s_zy[jobs].mean(axis=0), s_zx[jobs].mean(axis=0), y[jobs].mean()
         )
         db[row] = np.interp(estimate.frequency_hz, frequency, 20 * np.log10(magnitude))

@@ -43,8 +43,9 @@ THETA_UNITS: dict[str, str] = {
 PRIOR_SPAN = 1.0
 """Default bounds: the prior value times (1 - span, 1 + span), i.e. +-100 % (section IV-B)."""
 MIN_INERTIA_FRACTION = 0.05
-"""Lower bound on J_sum as a fraction of its prior, and the margin keeping x1, x12 in (0, 1):
-a vanishing inertia cannot idle, so +-100 % bounds are narrowed there."""
+"""Lower bound on J_sum (and on K where it is free) as a fraction of its prior, and the margin
+keeping x1, x12 in (0, 1): a vanishing inertia or engine gain cannot idle, so +-100 % bounds are
+narrowed there."""
 
 
 def theta_from_parameters(p: DrivetrainParameters) -> dict[str, float]:
@@ -90,7 +91,10 @@ class Parameterization:
     fixed
         Values of the fixed parameters, by name.
     t_loss, gain
-        T_loss (N*m) and K, held fixed.
+        T_loss (N*m) and K, held fixed (K only when ``gain_bounds`` is None).
+    gain_bounds
+        (lower, upper) to identify K as well, as the last free parameter (setup 1 of section IV-B,
+        which shows why the product does not: K scales with J_sum, c and d).
     """
 
     lower: np.ndarray
@@ -98,6 +102,7 @@ class Parameterization:
     fixed: Mapping[str, float]
     t_loss: float
     gain: float
+    gain_bounds: tuple[float, float] | None = None
 
     @classmethod
     def around(
@@ -108,6 +113,7 @@ class Parameterization:
         fixed: Mapping[str, float] | None = None,
         bounds: Mapping[str, tuple[float, float]] | None = None,
         span: float = PRIOR_SPAN,
+        gain_bounds: tuple[float, float] | None = None,
     ) -> Parameterization:
         """Bounds of +-``span`` around a prior (narrowed where a value cannot idle).
 
@@ -123,6 +129,8 @@ class Parameterization:
             Explicit (lower, upper) bounds by theta name, overriding the span.
         span
             Relative half-width of the default bounds.
+        gain_bounds
+            Bounds of K to identify it too (setup 1 only); None holds it at ``gain``.
         """
         fixed = dict(fixed or {})
         bounds = dict(bounds or {})
@@ -147,12 +155,20 @@ class Parameterization:
                 )
             i = THETA_NAMES.index(name)
             lower[i], upper[i] = lo, hi
-        return cls(np.maximum(lower, 0.0), upper, fixed, t_loss, gain)
+        return cls(np.maximum(lower, 0.0), upper, fixed, t_loss, gain, gain_bounds)
 
     @property
     def free(self) -> tuple[str, ...]:
-        """Names of the free parameters, in theta order."""
-        return tuple(n for n in THETA_NAMES if n not in self.fixed)
+        """Names of the free parameters, in theta order (then K when it is free)."""
+        theta = tuple(n for n in THETA_NAMES if n not in self.fixed)
+        return (*theta, "K") if self.gain_bounds else theta
+
+    def bounds_of(self, name: str) -> tuple[float, float]:
+        """(lower, upper) of a free parameter, SI units."""
+        if name == "K" and self.gain_bounds:
+            return self.gain_bounds
+        i = THETA_NAMES.index(name)
+        return float(self.lower[i]), float(self.upper[i])
 
     def theta(self, unit: np.ndarray) -> np.ndarray:
         """Full theta (n, 10) from normalised free values (n, n_free) in [0, 1]."""
@@ -167,12 +183,22 @@ class Parameterization:
                 free += 1
         return theta
 
-    def unit(self, theta: np.ndarray) -> np.ndarray:
-        """Normalised free values (n, n_free) of a full theta (n, 10)."""
+    def unit(self, theta: np.ndarray, gain: float | None = None) -> np.ndarray:
+        """Normalised free values (n, n_free) of a full theta (n, 10) (and K when it is free)."""
         theta = np.atleast_2d(theta)
-        idx = [THETA_NAMES.index(n) for n in self.free]
-        return (theta[:, idx] - self.lower[idx]) / (self.upper[idx] - self.lower[idx])
+        idx = [THETA_NAMES.index(n) for n in self.free if n != "K"]
+        unit = (theta[:, idx] - self.lower[idx]) / (self.upper[idx] - self.lower[idx])
+        if self.gain_bounds:
+            lo, hi = self.gain_bounds
+            column = np.full((theta.shape[0], 1), ((gain or self.gain) - lo) / (hi - lo))
+            unit = np.hstack([unit, column])
+        return unit
 
     def parameters(self, unit: np.ndarray) -> np.ndarray:
         """Physical parameter arrays (n, 12) from normalised free values."""
-        return theta_to_arrays(self.theta(unit), self.t_loss, self.gain)
+        unit = np.atleast_2d(unit)
+        out = theta_to_arrays(self.theta(unit), self.t_loss, self.gain)
+        if self.gain_bounds:
+            lo, hi = self.gain_bounds
+            out[:, INDEX["K"]] = lo + unit[:, -1] * (hi - lo)
+        return out

@@ -6,7 +6,7 @@ below it.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -110,14 +110,61 @@ def plot_fit(
         label = f"{estimate.run.amplitude_nm:g} N*m ({role})"
         axis.plot(estimate.frequency_hz, estimate.drv_db, color=colour, linewidth=0.8, alpha=0.6)
         axis.plot(
-            estimate.frequency_hz, db, color=colour, linewidth=2,
-            linestyle="--" if role == "validation" else "-", label=label,
+            estimate.frequency_hz,
+            db,
+            color=colour,
+            linewidth=2,
+            linestyle="--" if role == "validation" else "-",
+            label=label,
         )
     axis.set_xlabel("frequency / Hz")
     axis.set_ylabel("|G_DRV| / dB re 1 (rad/s)/(N*m)")
     axis.set_title(title or "Measured (thin) and identified (thick) frequency responses")
     axis.grid(True, alpha=0.3)
     axis.legend(fontsize="small")
+    figure.tight_layout()
+    try:
+        figure.savefig(path, dpi=110)
+    except (OSError, ValueError) as error:
+        raise RecordingError(f"cannot write the plot {path}: {error}") from None
+    finally:
+        plt.close(figure)
+    return path
+
+
+def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str = "") -> Path:
+    """Save the likelihood profiles of one setup, as a row of the paper's Fig. 5.
+
+    Parameters
+    ----------
+    profiles
+        :class:`identification.profile.Profile` by parameter name.
+    path
+        Output file; the format follows its suffix.
+    title
+        Figure title.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    names = list(profiles)
+    columns = min(len(names), 5)
+    rows = -(-len(names) // columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(3 * columns, 2.6 * rows), squeeze=False)
+    for axis, name in zip(axes.flat, names, strict=False):
+        prof = profiles[name]
+        span = prof.values[-1] - prof.values[0]
+        axis.plot((prof.values - prof.values[0]) / span, prof.objective, "o-", markersize=3)
+        axis.set_title(f"{name} ({prof.verdict})", fontsize="small")
+        axis.set_xlabel("normalised value", fontsize="small")
+        axis.grid(True, alpha=0.3)
+    for axis in list(axes.flat)[len(names) :]:
+        axis.axis("off")
+    axes[0, 0].set_ylabel("NRMSE (eq. 17)")
+    figure.suptitle(title or "Likelihood profiles")
     figure.tight_layout()
     try:
         figure.savefig(path, dpi=110)

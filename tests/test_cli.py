@@ -75,8 +75,9 @@ def test_simulate_through_another_dbc(tmp_path: Path) -> None:
     assert main(["frf", str(path), *interface, *signals]) == 0
 
 
-def test_truncated_recording(recording: Path, tmp_path: Path,
-                             capsys: pytest.CaptureFixture[str]) -> None:
+def test_truncated_recording(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     broken = tmp_path / "broken.blf"
     broken.write_bytes(recording.read_bytes()[:100])
     assert "broken.blf" in _error(capsys, ["frf", str(broken)])
@@ -89,24 +90,36 @@ def test_unreadable_recording(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert "does not exist" in _error(capsys, ["frf", str(tmp_path / "missing.blf")])
 
 
-def test_dbc_without_the_mapped_message(recording: Path,
-                                        capsys: pytest.CaptureFixture[str]) -> None:
+def test_dbc_without_the_mapped_message(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     message = _error(capsys, ["frf", str(recording), "--dbc", str(DATA / "other_vehicle.dbc")])
     assert "EngineSpeed" in message and "--signals" in message
 
 
-def test_map_naming_an_unknown_signal(recording: Path, tmp_path: Path,
-                                      capsys: pytest.CaptureFixture[str]) -> None:
+def test_map_naming_an_unknown_signal(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     bad = tmp_path / "bad.toml"
     text = (DATA / "other_vehicle_signals.toml").read_text()
     bad.write_text(text.replace('"CrankSpeed"', '"CrankSped"'))
-    message = _error(capsys, ["inspect", str(recording), "--dbc",
-                              str(DATA / "other_vehicle.dbc"), "--signals", str(bad)])
+    message = _error(
+        capsys,
+        [
+            "inspect",
+            str(recording),
+            "--dbc",
+            str(DATA / "other_vehicle.dbc"),
+            "--signals",
+            str(bad),
+        ],
+    )
     assert "CrankSped" in message and "CrankSpeed" in message
 
 
-def test_recording_without_chirp(tmp_path: Path, recording: Path,
-                                 capsys: pytest.CaptureFixture[str]) -> None:
+def test_recording_without_chirp(
+    tmp_path: Path, recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from acquisition.logfile import read_log, write_log
 
     quiet = tmp_path / "quiet.blf"
@@ -115,8 +128,7 @@ def test_recording_without_chirp(tmp_path: Path, recording: Path,
     assert main(["inspect", str(quiet)]) == 0  # inspect reports, it does not refuse
 
 
-def test_chirp_too_short_for_the_band(recording: Path,
-                                      capsys: pytest.CaptureFixture[str]) -> None:
+def test_chirp_too_short_for_the_band(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     message = _error(capsys, ["frf", str(recording), "--resolution", "0.1"])
     assert "too short" in message
     message = _error(capsys, ["frf", str(recording), "--band", "0.2", "14"])
@@ -134,11 +146,21 @@ def test_bad_parameter_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
 def test_inspect_a_real_log_through_an_example_map(tmp_path: Path, realdata: Path) -> None:
     out = tmp_path / "genesis.json"
     maps = Path(__file__).parents[1] / "dbc" / "maps"
-    assert main([
-        "inspect", str(realdata / "genesis_autolog.log"),
-        "--dbc", str(realdata / "opendbc_hyundai_kia_generic.dbc"),
-        "--signals", str(maps / "opendbc_hyundai_kia_generic.toml"), "--json", str(out),
-    ]) == 0
+    assert (
+        main(
+            [
+                "inspect",
+                str(realdata / "genesis_autolog.log"),
+                "--dbc",
+                str(realdata / "opendbc_hyundai_kia_generic.dbc"),
+                "--signals",
+                str(maps / "opendbc_hyundai_kia_generic.toml"),
+                "--json",
+                str(out),
+            ]
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     assert report["roles"]["speed"]["count"] == 3645
     assert 750 <= report["roles"]["speed"]["min"] < report["roles"]["speed"]["max"] <= 2050
@@ -154,10 +176,30 @@ def test_demo_into_an_unwritable_place(tmp_path: Path, capsys: pytest.CaptureFix
 
 def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
     out, plot = tmp_path / "identify.json", tmp_path / "fit.png"
-    fix = ["J_sum=0.28", "x1=0.625", "x12=0.857", "c23=80", "d23=0.3", "Tc12=0.3", "eps23=0.012",
-           "eps12=0.02"]
-    argv = ["identify", str(recording), "--fix", *fix, "--generations", "2",
-            "--profile-points", "3", "--json", str(out), "--plot", str(plot)]
+    fix = [
+        "J_sum=0.28",
+        "x1=0.625",
+        "x12=0.857",
+        "c23=80",
+        "d23=0.3",
+        "Tc12=0.3",
+        "eps23=0.012",
+        "eps12=0.02",
+    ]
+    argv = [
+        "identify",
+        str(recording),
+        "--fix",
+        *fix,
+        "--generations",
+        "2",
+        "--profile-points",
+        "3",
+        "--json",
+        str(out),
+        "--plot",
+        str(plot),
+    ]
     assert main(argv) == 0
     document = json.loads(out.read_text())
     names = {"J_sum", "x1", "x12", "c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23"}
@@ -175,3 +217,10 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
 def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "expected NAME=VALUE" in _error(capsys, ["identify", str(recording), "--fix", "J9=1"])
     assert "is not a number" in _error(capsys, ["identify", str(recording), "--fix", "c12=stiff"])
+
+
+def test_profile_needs_a_setup_or_recordings(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert "not both" in _error(capsys, ["profile"])
+    assert "not both" in _error(capsys, ["profile", str(recording), "--setup", "2"])

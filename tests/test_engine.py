@@ -30,8 +30,10 @@ def test_inertia_torque_of_four_cylinders() -> None:
     # T_j / omega^2 = -m r^2 (2 sin 2phi + lambda^2 sin 4phi).
     g = EngineGeometry()
     lam = g.crank_radius_m / g.rod_length_m
-    expected = -g.oscillating_mass_kg * g.crank_radius_m**2 * (
-        2 * np.sin(2 * PHI) + lam**2 * np.sin(4 * PHI)
+    expected = (
+        -g.oscillating_mass_kg
+        * g.crank_radius_m**2
+        * (2 * np.sin(2 * PHI) + lam**2 * np.sin(4 * PHI))
     )
     np.testing.assert_allclose(engine_tables().inertia, _step_mean(expected), atol=1e-12)
 

@@ -98,8 +98,12 @@ def test_a_few_lost_speed_frames_are_filled(reference_data: TestData) -> None:
     keep = np.ones(len(t), dtype=bool)
     middle = np.searchsorted(t, 0.5 * (run.start_s + run.end_s))
     keep[middle : middle + 2] = False
-    lossy = TestData(Series(t[keep], v[keep]), reference_data.mean_torque,
-                     reference_data.test_torque, reference_data.torque_request)
+    lossy = TestData(
+        Series(t[keep], v[keep]),
+        reference_data.mean_torque,
+        reference_data.test_torque,
+        reference_data.torque_request,
+    )
     filled = estimate_frf(lossy, run)
     np.testing.assert_allclose(filled.frequency_hz, full.frequency_hz, rtol=1e-4)
     assert np.abs(filled.drv_db - full.drv_db).max() < 0.05

@@ -32,7 +32,9 @@ def test_operating_point_and_split(softer_dmf: tuple) -> None:
 
 
 def _identify_two(
-    reference: DrivetrainParameters, truth: DrivetrainParameters, measured: MeasuredTest,
+    reference: DrivetrainParameters,
+    truth: DrivetrainParameters,
+    measured: MeasuredTest,
     free: tuple[str, str],
 ):
     theta = theta_from_parameters(truth)
@@ -43,8 +45,12 @@ def _identify_two(
     ident, valid = split_runs([measured])
     start = start_theta([measured.estimates[i] for i in ident[0]], reference)
     return identify(
-        [measured], par, ident, valid,
-        SearchSettings(popsize=8, generations=12, polish_evaluations=80), start=start,
+        [measured],
+        par,
+        ident,
+        valid,
+        SearchSettings(popsize=8, generations=12, polish_evaluations=80),
+        start=start,
     )
 
 

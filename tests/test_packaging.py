@@ -16,8 +16,7 @@ TOP_PACKAGES = ("acquisition", "identification", "simulator", "dbc", "dtid")
 @pytest.mark.slow
 def test_wheel_holds_all_packages_and_data(tmp_path: Path) -> None:
     subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q",
-         "-w", str(tmp_path), str(ROOT)],
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(ROOT)],
         check=True,
     )
     (wheel,) = tmp_path.glob("drivetrain_id-*.whl")

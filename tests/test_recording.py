@@ -81,7 +81,6 @@ def test_a_second_dbc_via_its_map_gives_the_same_frf(
         np.testing.assert_allclose(a.coherence, b.coherence, atol=1e-3)
 
 
-
 def test_frames_out_of_time_order_are_sorted(
     short_test: SimulationResult, caplog: pytest.LogCaptureFixture
 ) -> None:

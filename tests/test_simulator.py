@@ -128,15 +128,31 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
         out_torque = np.empty((n_stroke_max, 3))
         zeros_s, zeros_t = np.zeros(n_speed_max), np.zeros(n_stroke_max)
         n_speed, n_torque, status = run_plant(
-            reference.as_array(), tables.combustion_shape, tables.compression, tables.inertia,
-            options.controller.as_array(), requests.request_t, requests.test_torque_nm, 1.0,
+            reference.as_array(),
+            tables.combustion_shape,
+            tables.compression,
+            tables.inertia,
+            options.controller.as_array(),
+            requests.request_t,
+            requests.test_torque_nm,
+            1.0,
             plan.end_s,
-            n_sub, options.sigmas(), zeros_t, zeros_s, zeros_t, out_speed, out_torque,
+            n_sub,
+            options.sigmas(),
+            zeros_t,
+            zeros_s,
+            zeros_t,
+            out_speed,
+            out_torque,
         )
         assert status == 0
         result = SimulationResult.from_outputs(
-            out_speed[:n_speed], out_torque[:n_torque],
-            (requests.request_t, requests.test_torque_nm), reference, plan, options,
+            out_speed[:n_speed],
+            out_torque[:n_torque],
+            (requests.request_t, requests.test_torque_nm),
+            reference,
+            plan,
+            options,
         )
         frfs.append(_frf(result))
     coherent = frfs[0].coherence > 0.9

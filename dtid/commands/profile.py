@@ -1,0 +1,78 @@
+"""``dtid profile``: likelihood profiles (section IV-B, Fig. 5) of a setup or of recordings.
+
+``--setup 1..4`` simulates the paper's identification setups on the reference vehicle (clean data,
+bounds +-100 % of the truth) and profiles every free parameter; with recordings instead, the
+parameters are identified first and profiled around the optimum.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from dbc.loader import load_interface
+from dtid.commands.common import add_interface_options, write_json
+from dtid.commands.identify import parse_fixed
+from dtid.errors import ConfigError
+from identification.frf import DEFAULT_RESOLUTION_HZ
+from identification.pipeline import run_identification
+from identification.recording import load_recording
+from identification.setups import profile_setup, setup
+from identification.test_setup import MeasuredTest
+from simulator.parameters import reference_parameters
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register the subcommand."""
+    parser = subparsers.add_parser(
+        "profile",
+        help="likelihood profiles of a setup or of recordings (Fig. 5)",
+        description=__doc__,
+    )
+    parser.add_argument("recordings", type=Path, nargs="*", metavar="RECORDING")
+    parser.add_argument("--setup", type=int, choices=(1, 2, 3, 4), help="paper's setup")
+    parser.add_argument("--points", type=int, default=7, help="grid points (default: 7)")
+    parser.add_argument("--fix", nargs="+", default=[], metavar="NAME=VALUE")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--json", type=Path, help="write the profiles as JSON")
+    parser.add_argument("--plot", type=Path, help="plot the profiles")
+    add_interface_options(parser)
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Profile and report."""
+    if (args.setup is None) == (not args.recordings):
+        raise ConfigError("give either --setup 1..4 or recordings to profile, not both")
+    if args.points < 3:
+        raise ConfigError("--points must be at least 3")
+    if args.setup is not None:
+        profiles = profile_setup(setup(args.setup), points=args.points, seed=args.seed)
+        title = f"Setup {args.setup}"
+    else:
+        interface = load_interface(args.dbc, args.signals)
+        tests = [
+            MeasuredTest.from_data(
+                str(p), load_recording(p, interface).test_data(), DEFAULT_RESOLUTION_HZ
+            )
+            for p in args.recordings
+        ]
+        report = run_identification(
+            tests,
+            reference_parameters(),
+            fixed=parse_fixed(args.fix),
+            profile_points=args.points,
+        )
+        profiles = dict(report.profiles)
+        title = "Profiles around the identified parameters"
+    for name, prof in profiles.items():
+        left, right = prof.rise
+        print(f"{name:>6}: {prof.verdict:<10} rise left {left:.3f}, right {right:.3f}")
+    if args.json:
+        write_json(args.json, {name: prof.as_dict() for name, prof in profiles.items()})
+    if args.plot:
+        from identification.plots import plot_profiles
+
+        plot_profiles(profiles, args.plot, title)
+        print(f"plot: {args.plot}")
+    return 0
