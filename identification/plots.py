@@ -18,6 +18,19 @@ COHERENCE_FLOOR = 0.7
 """Bins below this coherence are drawn faint: noise makes up a third or more of the response."""
 
 
+def _save(figure: object, path: Path) -> Path:
+    """Write a figure (format by suffix) and close it; a failure names the file."""
+    import matplotlib.pyplot as plt
+
+    try:
+        figure.savefig(path, dpi=110)  # type: ignore[attr-defined]
+    except (OSError, ValueError) as error:
+        raise RecordingError(f"cannot write the plot {path}: {error}") from None
+    finally:
+        plt.close(figure)  # type: ignore[arg-type]
+    return path
+
+
 def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = "") -> Path:
     """Save |G_DRV|, |G_ENG| and the coherence of each chirp run to an image file.
 
@@ -67,13 +80,7 @@ def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = ""
     for axis in (ax_drv, ax_eng, ax_coh):
         axis.grid(True, which="both", alpha=0.3)
     figure.tight_layout()
-    try:
-        figure.savefig(path, dpi=110)
-    except (OSError, ValueError) as error:
-        raise RecordingError(f"cannot write the plot {path}: {error}") from None
-    finally:
-        plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def plot_fit(
@@ -123,13 +130,7 @@ def plot_fit(
     axis.grid(True, alpha=0.3)
     axis.legend(fontsize="small")
     figure.tight_layout()
-    try:
-        figure.savefig(path, dpi=110)
-    except (OSError, ValueError) as error:
-        raise RecordingError(f"cannot write the plot {path}: {error}") from None
-    finally:
-        plt.close(figure)
-    return path
+    return _save(figure, path)
 
 
 def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str = "") -> Path:
@@ -166,10 +167,4 @@ def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str =
     axes[0, 0].set_ylabel("NRMSE (eq. 17)")
     figure.suptitle(title or "Likelihood profiles")
     figure.tight_layout()
-    try:
-        figure.savefig(path, dpi=110)
-    except (OSError, ValueError) as error:
-        raise RecordingError(f"cannot write the plot {path}: {error}") from None
-    finally:
-        plt.close(figure)
-    return path
+    return _save(figure, path)

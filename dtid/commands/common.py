@@ -5,9 +5,14 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
+from dbc.loader import load_interface
 from dtid.errors import ConfigError, RecordingError
+from identification.frf import DEFAULT_RESOLUTION_HZ
+from identification.recording import load_recording
+from identification.test_setup import MeasuredTest
 
 
 def add_interface_options(parser: argparse.ArgumentParser) -> None:
@@ -39,3 +44,16 @@ def write_json(path: Path, document: object) -> None:
         raise RecordingError(f"cannot write {path}: {error.strerror}") from None
     except ValueError as error:
         raise ConfigError(f"cannot write {path}: {error}") from None
+
+
+def measured_tests(
+    recordings: Sequence[Path], dbc: Path | None, signals: Path | None
+) -> list[MeasuredTest]:
+    """Load recordings and estimate their runs' FRFs for the identification commands."""
+    interface = load_interface(dbc, signals)
+    return [
+        MeasuredTest.from_data(
+            str(path), load_recording(path, interface).test_data(), DEFAULT_RESOLUTION_HZ
+        )
+        for path in recordings
+    ]

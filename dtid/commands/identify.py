@@ -12,16 +12,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from dbc.loader import load_interface
-from dtid.commands.common import add_interface_options, positive_float, write_json
+from dtid.commands.common import (
+    add_interface_options,
+    measured_tests,
+    positive_float,
+    write_json,
+)
 from dtid.errors import ConfigError
-from identification.frf import DEFAULT_RESOLUTION_HZ
 from identification.identify import SearchSettings
 from identification.model_response import model_drv_db
 from identification.parameterization import THETA_NAMES
 from identification.pipeline import OPERATING_POINT, run_identification
-from identification.recording import load_recording
-from identification.test_setup import MeasuredTest
 from simulator.parameters import load_parameters, reference_parameters
 
 
@@ -103,13 +104,7 @@ def run(args: argparse.Namespace) -> int:
     """Identify, print the result, write JSON and plot as asked."""
     fixed = parse_fixed(args.fix)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
-    interface = load_interface(args.dbc, args.signals)
-    tests = [
-        MeasuredTest.from_data(
-            str(path), load_recording(path, interface).test_data(), DEFAULT_RESOLUTION_HZ
-        )
-        for path in args.recordings
-    ]
+    tests = measured_tests(args.recordings, args.dbc, args.signals)
     report = run_identification(
         tests,
         prior,

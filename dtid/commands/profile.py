@@ -10,15 +10,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dbc.loader import load_interface
-from dtid.commands.common import add_interface_options, write_json
+from dtid.commands.common import add_interface_options, measured_tests, write_json
 from dtid.commands.identify import parse_fixed
 from dtid.errors import ConfigError
-from identification.frf import DEFAULT_RESOLUTION_HZ
 from identification.pipeline import run_identification
-from identification.recording import load_recording
 from identification.setups import profile_setup, setup
-from identification.test_setup import MeasuredTest
 from simulator.parameters import reference_parameters
 
 
@@ -50,13 +46,7 @@ def run(args: argparse.Namespace) -> int:
         profiles = profile_setup(setup(args.setup), points=args.points, seed=args.seed)
         title = f"Setup {args.setup}"
     else:
-        interface = load_interface(args.dbc, args.signals)
-        tests = [
-            MeasuredTest.from_data(
-                str(p), load_recording(p, interface).test_data(), DEFAULT_RESOLUTION_HZ
-            )
-            for p in args.recordings
-        ]
+        tests = measured_tests(args.recordings, args.dbc, args.signals)
         report = run_identification(
             tests,
             reference_parameters(),
