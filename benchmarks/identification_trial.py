@@ -40,7 +40,7 @@ def main() -> None:
     """Run one trial and print its figures."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--truth", type=int, default=0, help="0: reference; n: random truth n")
-    parser.add_argument("--generations", type=int, default=40)
+    parser.add_argument("--generations", type=int, default=SearchSettings().generations)
     parser.add_argument("--polish", type=int, default=400, help="Nelder-Mead evaluations")
     args = parser.parse_args()
 

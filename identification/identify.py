@@ -50,7 +50,7 @@ class SearchSettings:
     """
 
     popsize: int = 8
-    generations: int = 120
+    generations: int = 40
     polish_evaluations: int = 800
     polish_step: float = 0.03
     seed: int = 0
