@@ -1,0 +1,299 @@
+"""Configuration of a vehicle test: bus, vehicle interface, test sequence, safety, pipeline.
+
+One TOML file (``deploy/dtid.example.toml`` documents every key) configures ``dtid acquire``,
+``dtid worker`` and ``dtid vehicle``; every section and key is optional and falls back to the
+defaults below. An unknown section or key, or a value of the wrong type or range, is a
+:class:`dtid.errors.ConfigError` naming it.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+from dtid.errors import ConfigError
+from simulator.chirp import TestPlan
+
+
+def default_runtime_dir() -> Path:
+    """Directory of the local (ipc) ZeroMQ endpoints: ``$XDG_RUNTIME_DIR/dtid`` or /tmp."""
+    runtime = os.environ.get("XDG_RUNTIME_DIR")
+    return Path(runtime) / "dtid" if runtime else Path(f"/tmp/dtid-{os.getuid()}")
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """The python-can bus.
+
+    Attributes
+    ----------
+    interface, channel
+        python-can interface and channel: ``socketcan``/``vcan0`` on a laptop, ``can0`` in a
+        vehicle; ``udp_multicast`` with an IPv4 group only inside a private network namespace.
+    bitrate
+        Bit rate, bit/s (for interfaces that set it; SocketCAN takes it from ``ip link``).
+    time_factor
+        Bus time per wall time. 1 on a vehicle; > 1 only with a virtual vehicle run faster than
+        real time (``dtid vehicle --speedup``): the daemon then stretches receive times by it, so
+        the recording carries the test's own time base.
+    receive_buffer_bytes
+        Socket receive buffer asked for on interfaces that have one (udp_multicast), bytes.
+    options
+        Further keyword arguments of ``can.Bus`` (e.g. ``port`` of udp_multicast).
+    """
+
+    interface: str = "socketcan"
+    channel: str = "vcan0"
+    bitrate: int = 500_000
+    time_factor: float = 1.0
+    receive_buffer_bytes: int = 4 << 20
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class InterfaceConfig:
+    """DBC and signal map; None selects the product's own."""
+
+    dbc: Path | None = None
+    signals: Path | None = None
+
+
+@dataclass(frozen=True)
+class TestConfig:
+    """The test sequence: settle at idle, chirp at each identification amplitude, then validate.
+
+    Attributes
+    ----------
+    amplitudes_nm
+        Identification amplitudes A1, A2, ..., chirped in this order, N*m.
+    validation_nm
+        Amplitude of the validation chirp A3 after them, N*m; 0 for none.
+    f1_hz, f2_hz, duration_s, settle_s, pause_s, request_period_s
+        As :class:`simulator.chirp.TestPlan`.
+    """
+
+    __test__ = False
+
+    amplitudes_nm: tuple[float, ...] = (5.0, 10.0)
+    validation_nm: float = 2.0
+    f1_hz: float = 1.0
+    f2_hz: float = 15.0
+    duration_s: float = 60.0
+    settle_s: float = 3.0
+    pause_s: float = 3.0
+    request_period_s: float = 0.01
+
+    def plan(self) -> TestPlan:
+        """The chirps as a :class:`simulator.chirp.TestPlan` (validation chirp last)."""
+        validation = (self.validation_nm,) if self.validation_nm else ()
+        amplitudes = tuple(self.amplitudes_nm) + validation
+        return TestPlan(
+            amplitudes_nm=amplitudes,
+            f1_hz=self.f1_hz,
+            f2_hz=self.f2_hz,
+            duration_s=self.duration_s,
+            settle_s=self.settle_s,
+            pause_s=self.pause_s,
+            request_period_s=self.request_period_s,
+        )
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """The safety envelope of the test (see deploy/OPERATOR-GUIDE.md).
+
+    Attributes
+    ----------
+    max_amplitude_nm
+        Largest test torque the daemon will ever request, N*m; a plan above it is refused.
+    speed_window_rpm
+        Abort when the filtered speed leaves the idle set-point (the mean speed over the settle
+        phase) by more than this, rpm.
+    vehicle_timeout_s
+        Abort when no speed frame arrives for this long (bus time), s.
+    """
+
+    max_amplitude_nm: float = 20.0
+    speed_window_rpm: float = 250.0
+    vehicle_timeout_s: float = 0.2
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """Where a test's files go.
+
+    Attributes
+    ----------
+    directory
+        One sub-directory per test session is made here, holding the raw log and the results.
+    log_format
+        Extension of the raw CAN log: ``blf`` (default), ``asc`` or ``log`` (candump).
+    flush_period_s
+        Longest time (wall) a received frame may stay unwritten in the log, s.
+    """
+
+    directory: Path = Path("dtid-runs")
+    log_format: str = "blf"
+    flush_period_s: float = 0.5
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """ZeroMQ endpoints between daemon and worker.
+
+    Attributes
+    ----------
+    blocks
+        Daemon PUB of the event stream (:mod:`acquisition.stream`).
+    replay
+        Daemon REP that hands out kept events from a sequence number on.
+    results
+        Worker PUB of progress, FRFs and results.
+    block_period_s
+        Longest time (wall) a decoded sample waits in the daemon before its block is sent, s.
+    """
+
+    blocks: str = ""
+    replay: str = ""
+    results: str = ""
+    block_period_s: float = 0.002
+
+    def __post_init__(self) -> None:
+        runtime = default_runtime_dir()
+        for name in ("blocks", "replay", "results"):
+            if not getattr(self, name):
+                object.__setattr__(self, name, f"ipc://{runtime}/{name}")
+
+
+@dataclass(frozen=True)
+class AcquisitionConfig:
+    """The whole configuration file."""
+
+    bus: BusConfig = field(default_factory=BusConfig)
+    vehicle_interface: InterfaceConfig = field(default_factory=InterfaceConfig)
+    test: TestConfig = field(default_factory=TestConfig)
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+
+    def __post_init__(self) -> None:
+        _check(self)
+
+    def with_changes(self, section: str, **changes: Any) -> AcquisitionConfig:
+        """A copy with keys of one section replaced (for command-line overrides)."""
+        return replace(self, **{section: replace(getattr(self, section), **changes)})
+
+
+_SECTIONS = {
+    "bus": BusConfig,
+    "vehicle_interface": InterfaceConfig,
+    "test": TestConfig,
+    "safety": SafetyConfig,
+    "output": OutputConfig,
+    "pipeline": PipelineConfig,
+}
+
+
+def _convert(where: str, default: Any, value: Any, base: Path) -> Any:
+    """Check a TOML value against the type of its default; resolve paths against ``base``."""
+    if default is None or isinstance(default, Path):
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a file path, got {value!r}")
+        return base / Path(value).expanduser() if value else None
+    if isinstance(default, tuple):
+        if not isinstance(value, list) or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in value
+        ):
+            raise ConfigError(f"{where}: expected a list of numbers, got {value!r}")
+        return tuple(float(v) for v in value)
+    if isinstance(default, float):
+        if not isinstance(value, int | float) or isinstance(value, bool):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        return float(value)
+    if isinstance(default, int):
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if isinstance(default, dict):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a table, got {value!r}")
+        return dict(value)
+    if not isinstance(value, str):
+        raise ConfigError(f"{where}: expected a string, got {value!r}")
+    return value
+
+
+def _check(config: AcquisitionConfig) -> None:
+    """Range checks that need more than a type."""
+    positive = {
+        "bus": ("time_factor",),
+        "test": ("f1_hz", "f2_hz", "duration_s", "request_period_s"),
+        "safety": ("max_amplitude_nm", "speed_window_rpm", "vehicle_timeout_s"),
+        "output": ("flush_period_s",),
+        "pipeline": ("block_period_s",),
+    }
+    for section, names in positive.items():
+        for name in names:
+            value = getattr(getattr(config, section), name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"[{section}] {name} must be > 0, got {value}")
+    if config.output.log_format not in ("blf", "asc", "log"):
+        raise ConfigError(
+            f"[output] log_format must be 'blf', 'asc' or 'log', got {config.output.log_format!r}"
+        )
+    test = config.test
+    if not test.amplitudes_nm:
+        raise ConfigError("[test] amplitudes_nm needs at least one amplitude")
+    largest = max((*test.amplitudes_nm, test.validation_nm))
+    if largest > config.safety.max_amplitude_nm:
+        raise ConfigError(
+            f"[test] amplitude {largest:g} N*m exceeds [safety] max_amplitude_nm = "
+            f"{config.safety.max_amplitude_nm:g} N*m; lower the amplitude or, if the vehicle "
+            "allows it, raise the cap"
+        )
+    test.plan()  # the plan's own checks (band, Nyquist, signs)
+
+
+def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
+    """Read a configuration file; None gives the defaults.
+
+    Relative paths in ``[vehicle_interface]`` and ``[output]`` are taken from the file's folder.
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read or holds an unknown or invalid key.
+    """
+    if path is None:
+        return AcquisitionConfig()
+    path = Path(path)
+    try:
+        document = tomllib.loads(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"cannot read configuration {path}: {error.strerror}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path} is not valid TOML: {error}") from None
+    sections = {}
+    for section, values in document.items():
+        if section not in _SECTIONS:
+            raise ConfigError(f"{path}: unknown section [{section}]; known: {', '.join(_SECTIONS)}")
+        if not isinstance(values, dict):
+            raise ConfigError(f"{path}: [{section}] must be a table")
+        cls = _SECTIONS[section]
+        defaults = cls()
+        known = {f.name for f in fields(cls)}
+        converted = {}
+        for key, value in values.items():
+            if key not in known:
+                raise ConfigError(
+                    f"{path}: unknown key '{key}' in [{section}]; known: {', '.join(sorted(known))}"
+                )
+            converted[key] = _convert(
+                f"{path}: [{section}] {key}", getattr(defaults, key), value, path.parent
+            )
+        sections[section] = cls(**converted)
+    return AcquisitionConfig(**sections)
