@@ -44,6 +44,15 @@ from dbc.interface import RoleSeries
 KINDS = ("session", "samples", "phase", "health", "end")
 """Event kinds, also the PUB topics."""
 
+ABORT_REASONS = {
+    "speed_window": "the filtered engine speed left the window around the idle set-point",
+    "vehicle_timeout": "no engine speed frame arrived within the vehicle timeout",
+    "foreign_tx": "another node sends frames with the tool's own test-torque request ID",
+    "signal": "the daemon was told to stop (SIGINT or SIGTERM)",
+    "error": "the daemon failed (bus error or internal error); see its log",
+}
+"""Why a test may be aborted: the ``reason`` of an aborted ``end`` event."""
+
 
 def encode_event(event: Mapping[str, Any]) -> list[bytes]:
     """The two ZeroMQ frames of an event: topic and JSON body."""
