@@ -73,7 +73,7 @@ from simulator.couplings import dead_zone, dmf_smooth_torque
 from simulator.engine import engine_tables
 from simulator.kernel import MAX_SPEED_RATIO, MIN_SPEED_RATIO
 from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, SimulationResult, _capacity, test_requests
+from simulator.simulate import SimulationOptions, SimulationResult, output_capacity, test_requests
 
 FRICTION_WIDTH_RAD_S = 1e-3
 """Width w_f of the regularised Coulomb friction Tc12 * tanh(rate12 / w_f), rad/s.
@@ -330,7 +330,7 @@ def simulate_solve_ivp(
     )
     request_t, request_nm = test_requests(plan)
     sigma_cv, sigma_speed, sigma_torque = options.sigmas()
-    n_speed_max, n_stroke_max = _capacity(plan.end_s, controller)
+    n_speed_max, n_stroke_max = output_capacity(plan.end_s, controller)
     rng = np.random.default_rng(seed)
     cv_noise = rng.standard_normal(n_stroke_max)
     torque_noise = rng.standard_normal(n_stroke_max)

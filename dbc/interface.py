@@ -193,6 +193,18 @@ class VehicleInterface:
             text += f"; '{name}' is a signal of message {', '.join(elsewhere[:5])}"
         return text
 
+    def checks_checksum(self, role: str) -> bool:
+        """True when the role's frames carry the product's checksum (which
+        :func:`dbc.checksum.verify_checksum` checks on a received payload)."""
+        bound = self._roles.get(role)
+        return bound is not None and bound.product_checksum
+
+    def frame_key(self, role: str) -> tuple[int, bool]:
+        """Arbitration ID and whether it is extended, of the role's message."""
+        self.signal_map.require(role)
+        message = self._roles[role].message
+        return message.frame_id, message.is_extended_frame
+
     def present_roles(self) -> tuple[str, ...]:
         """Return the mapped roles."""
         return self.signal_map.present_roles()

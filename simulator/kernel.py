@@ -16,6 +16,10 @@ Events on the angle grid, at the start of a step, in this order:
    idle controller updates, and T_ecu = controller output + the test torque request last received
    (a table of request times and values, scaled: the plan's chirps or a recording's requests).
 
+A run may be advanced in segments: :func:`advance` continues a state vector made by
+:func:`initial_state` (the virtual vehicle steps the plant in real time this way, with the request
+it holds); advancing once to the end is :func:`run_plant`.
+
 Kernels return a status and never raise: 0 completed, 1 the engine speed left 0.5..3 times the
 set-point (a stall or run-away of a non-physical parameter set), 2 an output buffer filled up.
 """
@@ -56,8 +60,44 @@ MAX_SPEED_RATIO = 3.0
 """The run stops above this multiple of the set-point speed (run-away)."""
 
 
+# Layout of a plant state vector (see :func:`initial_state`): scalars, then the held mean torque
+# of each cylinder, then the speed sensor's window of step speeds.
+S_T, S_T_CONTROL, S_STEP, S_W1, S_W2, S_W3 = 0, 1, 2, 3, 4, 5
+S_DELTA12, S_DELTA23, S_BACKLASH, S_INTEGRAL, S_REQUEST, S_WINDOW_SUM, S_WINDOW_POS = (
+    6, 7, 8, 9, 10, 11, 12
+)
+N_SCALARS = 13
+STATE_SIZE = N_SCALARS + N_CYL + N_WIN
+"""Length of a plant state vector."""
+
+
 @numba.njit(cache=True)
-def run_plant(
+def initial_state(params: np.ndarray, controller: np.ndarray, test_nm: float) -> np.ndarray:
+    """The plant at rest at its idle set-point, t = 0, before the first angle step.
+
+    All masses turn at the set-point speed, the couplings are relaxed, every cylinder holds
+    T_loss, the integrator holds T_loss / K and the ECU's request is that plus ``test_nm``, the
+    test torque held at t = 0 (N*m).
+    """
+    t_loss, gain = params[10], params[11]
+    setpoint, u_min, u_max = controller[0], controller[3], controller[4]
+    w_set = setpoint / RPM_PER_RAD_S
+    state = np.zeros(STATE_SIZE)
+    state[S_W1] = w_set
+    state[S_W2] = w_set
+    state[S_W3] = w_set
+    integral = min(max(t_loss / gain, u_min), u_max)
+    state[S_INTEGRAL] = integral
+    state[S_REQUEST] = integral + test_nm
+    state[N_SCALARS : N_SCALARS + N_CYL] = t_loss
+    state[N_SCALARS + N_CYL :] = w_set
+    state[S_WINDOW_SUM] = N_WIN * w_set
+    return state
+
+
+@numba.njit(cache=True)
+def advance(
+    state: np.ndarray,
     params: np.ndarray,
     combustion_shape: np.ndarray,
     compression: np.ndarray,
@@ -75,10 +115,13 @@ def run_plant(
     out_speed: np.ndarray,
     out_torque: np.ndarray,
 ) -> tuple[int, int, int]:
-    """Simulate one test; fill ``out_speed`` and ``out_torque`` in place.
+    """Advance the plant from ``state`` until its time reaches ``t_end``; update ``state``.
 
     Parameters
     ----------
+    state
+        Plant state (:func:`initial_state`), updated in place to the first angle step at or
+        after ``t_end``, so that consecutive calls continue one run exactly.
     params
         Drivetrain parameters in the order of :data:`simulator.parameters.NAMES`, SI units.
     combustion_shape, compression, inertia
@@ -87,24 +130,26 @@ def run_plant(
         :meth:`simulator.controller.IdleController.as_array`.
     request_t, request_nm
         Test-torque requests as the ECU receives them: times (s, increasing) and values (N*m);
-        the ECU holds the last one received (zero before the first).
+        the ECU holds the last one received at each speed sample (zero before the first).
     request_scale
         Factor on the request values (a unit chirp scaled to an amplitude).
     t_end
-        Simulated duration, s.
+        Time to advance to, s.
     n_sub
         Substeps per angle step (>= 1).
     sigmas
         Standard deviations: relative combustion variation of T_m, speed noise in rpm, torque
         noise in N*m.
-    cv_noise, torque_noise
-        Standard normal draws, one per working stroke.
+    cv_noise
+        Standard normal draws, one per working stroke started in this call.
+    torque_noise
+        Standard normal draws, one per stroke reported in this call.
     speed_noise
-        Standard normal draws, one per speed sample.
+        Standard normal draws, one per speed sample of this call.
     out_speed
-        Output (n_max, 5), columns :data:`SPEED_COLUMNS`.
+        Output (n_max, 5), columns :data:`SPEED_COLUMNS`, from row 0.
     out_torque
-        Output (n_max, 3), columns :data:`TORQUE_COLUMNS`.
+        Output (n_max, 3), columns :data:`TORQUE_COLUMNS`, from row 0.
 
     Returns
     -------
@@ -122,47 +167,43 @@ def run_plant(
 
     w_set = setpoint / RPM_PER_RAD_S
     w_min, w_max = MIN_SPEED_RATIO * w_set, MAX_SPEED_RATIO * w_set
-    w1 = w_set
-    w2 = w_set
-    w3 = w_set
-    delta12 = 0.0
-    delta23 = 0.0
-    backlash = 0.0
-    held = np.full(N_CYL, t_loss)
-    integral = min(max(t_loss / gain, u_min), u_max)
+    t = state[S_T]
+    t_control = state[S_T_CONTROL]
+    step = int(state[S_STEP])
+    w1, w2, w3 = state[S_W1], state[S_W2], state[S_W3]
+    delta12, delta23, backlash = state[S_DELTA12], state[S_DELTA23], state[S_BACKLASH]
+    integral, request = state[S_INTEGRAL], state[S_REQUEST]
+    window_sum, window_pos = state[S_WINDOW_SUM], int(state[S_WINDOW_POS])
+    held = state[N_SCALARS : N_SCALARS + N_CYL]  # views: updated in place
+    window = state[N_SCALARS + N_CYL :]
     n_requests = request_t.shape[0]
     received = 0  # requests received so far
-    while received < n_requests and request_t[received] <= 0.0:
-        received += 1
-    test = request_scale * request_nm[received - 1] if received > 0 else 0.0
-    request = integral + test
-    window = np.full(N_WIN, w_set)
-    window_sum = N_WIN * w_set
-    window_pos = 0
 
-    t = 0.0
-    t_control = 0.0
-    step = 0
     n_speed = 0
     n_torque = 0
-    max_speed = out_speed.shape[0]
-    max_strokes = min(out_torque.shape[0], cv_noise.shape[0])
+    n_started = 0
+    max_speed = min(out_speed.shape[0], speed_noise.shape[0])
+    max_strokes = min(out_torque.shape[0], cv_noise.shape[0], torque_noise.shape[0])
+    status = STATUS_OK
     while t < t_end:
         angle_index = step % STEPS_PER_CYCLE
         if step % STEPS_PER_STROKE == 0:
             stroke = step // STEPS_PER_STROKE
-            if stroke >= max_strokes:
-                return n_speed, n_torque, STATUS_BUFFER_FULL
+            if n_started >= max_strokes:
+                status = STATUS_BUFFER_FULL
+                break
             if stroke > 0:
                 finished = (stroke - 1) % N_CYL
                 out_torque[n_torque, 0] = t
                 out_torque[n_torque, 1] = held[finished] + sigma_torque * torque_noise[n_torque]
                 out_torque[n_torque, 2] = finished
                 n_torque += 1
-            held[stroke % N_CYL] = gain * request * (1.0 + sigma_cv * cv_noise[stroke])
+            held[stroke % N_CYL] = gain * request * (1.0 + sigma_cv * cv_noise[n_started])
+            n_started += 1
         if step % STEPS_PER_SPEED_SAMPLE == 0 and step > 0:
             if n_speed >= max_speed:
-                return n_speed, n_torque, STATUS_BUFFER_FULL
+                status = STATUS_BUFFER_FULL
+                break
             measured = window_sum / N_WIN * RPM_PER_RAD_S + sigma_speed * speed_noise[n_speed]
             if closed:
                 error = setpoint - measured
@@ -183,7 +224,8 @@ def run_plant(
             n_speed += 1
 
         if w1 < w_min or w1 > w_max:
-            return n_speed, n_torque, STATUS_SPEED_RANGE
+            status = STATUS_SPEED_RANGE
+            break
         dt = STEP_RAD / w1
         engine = compression[angle_index] + inertia[angle_index] * w1 * w1
         for cylinder in range(N_CYL):
@@ -212,7 +254,53 @@ def run_plant(
         window_pos = (window_pos + 1) % N_WIN
         t += dt
         step += 1
-    return n_speed, n_torque, STATUS_OK
+    state[S_T], state[S_T_CONTROL], state[S_STEP] = t, t_control, step
+    state[S_W1], state[S_W2], state[S_W3] = w1, w2, w3
+    state[S_DELTA12], state[S_DELTA23], state[S_BACKLASH] = delta12, delta23, backlash
+    state[S_INTEGRAL], state[S_REQUEST] = integral, request
+    state[S_WINDOW_SUM], state[S_WINDOW_POS] = window_sum, window_pos
+    return n_speed, n_torque, status
+
+
+@numba.njit(cache=True)
+def run_plant(
+    params: np.ndarray,
+    combustion_shape: np.ndarray,
+    compression: np.ndarray,
+    inertia: np.ndarray,
+    controller: np.ndarray,
+    request_t: np.ndarray,
+    request_nm: np.ndarray,
+    request_scale: float,
+    t_end: float,
+    n_sub: int,
+    sigmas: np.ndarray,
+    cv_noise: np.ndarray,
+    speed_noise: np.ndarray,
+    torque_noise: np.ndarray,
+    out_speed: np.ndarray,
+    out_torque: np.ndarray,
+) -> tuple[int, int, int]:
+    """Simulate one test from rest at the set-point; fill ``out_speed`` and ``out_torque``.
+
+    :func:`initial_state` followed by one :func:`advance` to ``t_end``; see there for the
+    parameters.
+
+    Returns
+    -------
+    tuple of int
+        Number of speed samples, number of torque samples, status.
+    """
+    n_zero = 0  # requests received before the first step
+    while n_zero < request_t.shape[0] and request_t[n_zero] <= 0.0:
+        n_zero += 1
+    test = request_scale * request_nm[n_zero - 1] if n_zero > 0 else 0.0
+    state = initial_state(params, controller, test)
+    return advance(
+        state, params, combustion_shape, compression, inertia, controller, request_t,
+        request_nm, request_scale, t_end, n_sub, sigmas, cv_noise, speed_noise, torque_noise,
+        out_speed, out_torque,
+    )
 
 
 @numba.njit(cache=True, parallel=True)

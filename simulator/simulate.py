@@ -183,8 +183,9 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
     return max(1, math.ceil(rate * longest_step / STABILITY_LIMIT))
 
 
-def _capacity(t_end: float, controller: IdleController) -> tuple[int, int]:
-    """Output rows needed for the speed and stroke events at the highest admitted speed."""
+def output_capacity(t_end: float, controller: IdleController) -> tuple[int, int]:
+    """Output rows needed for the speed and stroke events of ``t_end`` s at the highest
+    admitted speed (a few more than that, so a run's last partial step always fits)."""
     steps = t_end * MAX_SPEED_RATIO * controller.setpoint_rpm / RPM_PER_RAD_S / STEP_RAD
     return int(steps / STEPS_PER_SPEED_SAMPLE) + 8, int(steps / STEPS_PER_STROKE) + 8
 
@@ -226,7 +227,7 @@ def simulate(
     plan = plan or TestPlan()
     options = options or SimulationOptions()
     params = parameters.as_array()
-    n_speed_max, n_stroke_max = _capacity(plan.end_s, options.controller)
+    n_speed_max, n_stroke_max = output_capacity(plan.end_s, options.controller)
     request_t, request_nm = test_requests(plan)
     rng = np.random.default_rng(seed)
     cv_noise = rng.standard_normal(n_stroke_max)
@@ -355,7 +356,7 @@ def replay_batch(
     streams = np.arange(n_jobs) if streams is None else np.asarray(streams, dtype=np.int64)
     if streams.shape != (n_jobs,):
         raise ConfigError(f"streams must have shape ({n_jobs},), got {streams.shape}")
-    n_speed_max, n_stroke_max = _capacity(t_end, options.controller)
+    n_speed_max, n_stroke_max = output_capacity(t_end, options.controller)
     cv_noise = np.empty((n_jobs, n_stroke_max))
     torque_noise = np.empty((n_jobs, n_stroke_max))
     speed_noise = np.empty((n_jobs, n_speed_max))

@@ -50,23 +50,13 @@ def simulation_frames(result: SimulationResult, interface: VehicleInterface) -> 
         Frames in time order.
     """
     present = set(interface.present_roles())
-    frames: list[can.Message] = []
-    if "speed" in present:
-        for i, (t, rpm) in enumerate(zip(result.speed_t, result.speed_rpm, strict=True)):
-            extras = _extras(interface, "speed", counter=_counter("speed", i))
-            frames.append(interface.encode("speed", rpm, t, **extras))
-    if "torque_request" in present:
-        for i, (t, nm) in enumerate(zip(result.speed_t, result.torque_request_nm, strict=True)):
-            extras = _extras(interface, "torque_request", counter=_counter("torque_request", i))
-            frames.append(interface.encode("torque_request", nm, t, **extras))
-    if "mean_torque" in present:
-        for i, (t, nm, cylinder) in enumerate(
-            zip(result.torque_t, result.mean_torque_nm, result.cylinder, strict=True)
-        ):
-            extras = _extras(
-                interface, "mean_torque", cylinder=int(cylinder), counter=_counter("mean_torque", i)
-            )
-            frames.append(interface.encode("mean_torque", nm, t, **extras))
+    ecu = EcuFrames(interface)
+    frames = ecu.speed_frames(
+        np.column_stack([result.speed_t, result.speed_rpm, result.torque_request_nm])
+    )
+    frames += ecu.stroke_frames(
+        np.column_stack([result.torque_t, result.mean_torque_nm, result.cylinder])
+    )
     chirps = result.plan.chirps
     if "test_torque" in present:
         for i, (t, nm) in enumerate(zip(result.request_t, result.test_torque_nm, strict=True)):
@@ -87,3 +77,54 @@ def simulation_frames(result: SimulationResult, interface: VehicleInterface) -> 
             frames.append(interface.encode("heartbeat", state, t, **extras))
     frames.sort(key=lambda frame: frame.timestamp)
     return frames
+
+
+class EcuFrames:
+    """Encode the engine ECU's frames as they happen, with their running counters.
+
+    Parameters
+    ----------
+    interface
+        DBC and signal map; roles the map lacks are not sent.
+    """
+
+    def __init__(self, interface: VehicleInterface) -> None:
+        self.interface = interface
+        present = set(interface.present_roles())
+        self._speed = "speed" in present
+        self._request = "torque_request" in present
+        self._stroke = "mean_torque" in present
+        self._n_speed = 0
+        self._n_stroke = 0
+
+    def speed_frames(self, rows: np.ndarray) -> list[can.Message]:
+        """Frames of speed samples: rows of (t s, filtered speed rpm, T_ecu N*m)."""
+        frames = []
+        encode = self.interface.encode
+        for t, rpm, request in rows:
+            i = self._n_speed
+            if self._speed:
+                extras = _extras(self.interface, "speed", counter=_counter("speed", i))
+                frames.append(encode("speed", rpm, t, **extras))
+            if self._request:
+                extras = _extras(
+                    self.interface, "torque_request", counter=_counter("torque_request", i)
+                )
+                frames.append(encode("torque_request", request, t, **extras))
+            self._n_speed += 1
+        return frames
+
+    def stroke_frames(self, rows: np.ndarray) -> list[can.Message]:
+        """Frames of working strokes: rows of (t s, mean torque N*m, cylinder index)."""
+        frames = []
+        for t, nm, cylinder in rows:
+            if self._stroke:
+                extras = _extras(
+                    self.interface,
+                    "mean_torque",
+                    cylinder=int(cylinder),
+                    counter=_counter("mean_torque", self._n_stroke),
+                )
+                frames.append(self.interface.encode("mean_torque", nm, t, **extras))
+            self._n_stroke += 1
+        return frames

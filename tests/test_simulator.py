@@ -18,7 +18,7 @@ from simulator.parameters import DrivetrainParameters
 from simulator.simulate import (
     SimulationOptions,
     SimulationResult,
-    _capacity,
+    output_capacity,
     simulate,
     simulate_batch,
 )
@@ -123,7 +123,7 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
     requests = simulate(reference, plan, options)  # supplies the tool's test-torque requests
     frfs = []
     for n_sub in (1, 4):
-        n_speed_max, n_stroke_max = _capacity(plan.end_s, options.controller)
+        n_speed_max, n_stroke_max = output_capacity(plan.end_s, options.controller)
         out_speed = np.empty((n_speed_max, 5))
         out_torque = np.empty((n_stroke_max, 3))
         zeros_s, zeros_t = np.zeros(n_speed_max), np.zeros(n_stroke_max)

@@ -1,0 +1,104 @@
+"""The plant advanced in segments of simulated time, for a vehicle that runs in real time.
+
+:func:`simulator.simulate.simulate` runs a whole test against a known request table; a virtual
+vehicle does not know its requests in advance. :class:`PlantStepper` keeps the kernel's state
+vector and advances it segment by segment with the test torque the ECU holds at that moment,
+through the same numba kernel (:func:`simulator.kernel.advance`), so the physics is the
+simulator's own.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from simulator.kernel import S_T, STATUS_BUFFER_FULL, STATUS_OK, advance, initial_state
+from simulator.parameters import DrivetrainParameters
+from simulator.simulate import SimulationOptions, output_capacity, substeps
+
+
+class PlantStepper:
+    """One drivetrain with its engine, idle controller and sensors, advanced on demand.
+
+    Parameters
+    ----------
+    parameters
+        The drivetrain.
+    options
+        Engine, controller and noise (realistic by default).
+    seed
+        Seed of the combustion variation and sensor noise.
+    """
+
+    def __init__(
+        self,
+        parameters: DrivetrainParameters,
+        options: SimulationOptions | None = None,
+        seed: int = 0,
+    ) -> None:
+        self.options = options or SimulationOptions()
+        self.parameters = parameters
+        self._params = parameters.as_array()
+        self._tables = self.options.tables()
+        self._controller = self.options.controller.as_array()
+        self._sigmas = self.options.sigmas()
+        self._n_sub = substeps(self._params, self.options.controller)
+        self._rng = np.random.default_rng(seed)
+        self._state = initial_state(self._params, self._controller, 0.0)
+        self.stalled = False
+
+    @property
+    def time_s(self) -> float:
+        """Simulated time of the plant, s."""
+        return float(self._state[S_T])
+
+    def set_setpoint(self, setpoint_rpm: float) -> None:
+        """Change the idle controller's set-point, rpm (a disturbance for fault tests)."""
+        self._controller = self._controller.copy()
+        self._controller[0] = setpoint_rpm
+
+    def advance(self, t_end: float, test_nm: float) -> tuple[np.ndarray, np.ndarray]:
+        """Advance to ``t_end`` with the ECU holding the test torque ``test_nm``.
+
+        Parameters
+        ----------
+        t_end
+            Simulated time to reach, s.
+        test_nm
+            Test torque the ECU adds to its controller output over the whole segment, N*m.
+
+        Returns
+        -------
+        speed, torque
+            The segment's speed events (n, 5) and stroke events (m, 3) in the kernel's columns
+            (:data:`simulator.kernel.SPEED_COLUMNS`, :data:`simulator.kernel.TORQUE_COLUMNS`).
+            Empty once the engine has stalled or run away (:attr:`stalled`).
+        """
+        duration = t_end - self.time_s
+        if self.stalled or duration <= 0:
+            return np.empty((0, 5)), np.empty((0, 3))
+        n_speed_max, n_stroke_max = output_capacity(duration, self.options.controller)
+        out_speed = np.empty((n_speed_max, 5))
+        out_torque = np.empty((n_stroke_max, 3))
+        n_speed, n_torque, status = advance(
+            self._state,
+            self._params,
+            self._tables.combustion_shape,
+            self._tables.compression,
+            self._tables.inertia,
+            self._controller,
+            np.array([self.time_s]),
+            np.array([test_nm]),
+            1.0,
+            t_end,
+            self._n_sub,
+            self._sigmas,
+            self._rng.standard_normal(n_stroke_max),
+            self._rng.standard_normal(n_speed_max),
+            self._rng.standard_normal(n_stroke_max),
+            out_speed,
+            out_torque,
+        )
+        if status == STATUS_BUFFER_FULL:
+            raise RuntimeError("plant stepper: output buffer too small for the segment")
+        self.stalled = status != STATUS_OK
+        return out_speed[:n_speed], out_torque[:n_torque]
