@@ -72,7 +72,7 @@ class RequestReceiver:
         if len(series.values) != 1:
             self.dropped["undecodable"] += 1
             return
-        timed_out = self._last_valid_s is None or now_s - self._last_valid_s > self.timeout_s
+        timed_out = self.timed_out(now_s)
         if self._has_counter:
             counter = int(series.extra["counter"][0])
             expected = None if self._last_counter is None else (self._last_counter + 1)
@@ -85,8 +85,15 @@ class RequestReceiver:
         self._last_valid_s = now_s
         self.accepted += 1
 
+    @property
+    def last_valid_s(self) -> float | None:
+        """Bus time of the last accepted request, s (None before the first)."""
+        return self._last_valid_s
+
+    def timed_out(self, now_s: float) -> bool:
+        """True when no valid request has arrived within the timeout before ``now_s``."""
+        return self._last_valid_s is None or now_s - self._last_valid_s > self.timeout_s
+
     def test_torque(self, now_s: float) -> float:
         """Test torque the ECU applies at bus time ``now_s``, N*m (zero after a timeout)."""
-        if self._last_valid_s is None or now_s - self._last_valid_s > self.timeout_s:
-            return 0.0
-        return self._value_nm
+        return 0.0 if self.timed_out(now_s) else self._value_nm

@@ -1,0 +1,256 @@
+"""The simulator as the vehicle's engine ECU on a CAN bus (``dtid vehicle``).
+
+The virtual vehicle runs the numba plant (:class:`simulator.plant_stepper.PlantStepper`) paced to
+wall time, optionally faster by a factor (``speedup``): bus time = wall time since its start times
+the speedup. Each tick it takes the test-torque requests that arrived (accepted or dropped as the
+ECU does, :class:`simulator.ecu_requests.RequestReceiver`), advances the plant to the current bus
+time with the test torque it holds, and sends the speed, torque-request and mean-torque frames of
+that segment through the DBC (:class:`simulator.vehicle_frames.EcuFrames`).
+
+For fault tests it can drop, duplicate or corrupt its own frames on the way to the bus
+(:class:`BusFaults`) and step the idle set-point at a given bus time (a disturbance that drives
+the speed out of the daemon's window). A stalled engine (speed outside 0.5..3 times the
+set-point) stops sending, as a real one would.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from threading import Event
+
+import can
+import numpy as np
+
+from dbc.interface import VehicleInterface
+from dtid.errors import ConfigError
+from simulator.ecu_requests import RequestReceiver
+from simulator.plant_stepper import PlantStepper
+from simulator.vehicle_frames import EcuFrames
+
+TICK_S = 0.002
+"""Longest wall time between two plant segments, s."""
+MAX_SEGMENT_S = 0.01
+"""Longest bus time of one plant segment (the tool's request period), s."""
+
+
+@dataclass(frozen=True)
+class BusFaults:
+    """Faults the vehicle puts on its own frames, each an independent probability per frame.
+
+    Attributes
+    ----------
+    drop
+        The frame is not sent.
+    duplicate
+        The frame is sent twice.
+    corrupt
+        The frame is sent with its last payload byte cut off (a length the DBC rejects; on a real
+        bus the CAN CRC would discard such a frame, so the receiver sees it as bad or lost).
+    seed
+        Seed of the draws.
+    """
+
+    drop: float = 0.0
+    duplicate: float = 0.0
+    corrupt: float = 0.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("drop", "duplicate", "corrupt"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.0 <= value <= 1.0):
+                raise ConfigError(f"fault probability {name} must be within 0..1, got {value}")
+
+    @property
+    def any(self) -> bool:
+        """True when any fault is switched on."""
+        return self.drop > 0 or self.duplicate > 0 or self.corrupt > 0
+
+
+@dataclass(frozen=True)
+class SetpointStep:
+    """Move the idle set-point to ``setpoint_rpm`` at bus time ``at_s`` (s)."""
+
+    at_s: float
+    setpoint_rpm: float
+
+
+@dataclass
+class VehicleReport:
+    """What the virtual vehicle did, for the operator and the fault tests.
+
+    Attributes
+    ----------
+    bus_time_s
+        Bus time simulated, s.
+    frames_sent
+        Frames put on the bus (after faults).
+    faults
+        Frames dropped, duplicated and corrupted on purpose.
+    requests_accepted, requests_dropped
+        Test-torque request frames the ECU accepted, and dropped by reason.
+    last_request_s
+        Bus time of the last accepted request before the applied test torque last went to
+        zero, s (None: it never went from non-zero to zero).
+    zero_after_s
+        Bus time at which it went to zero, s.
+    zero_cause
+        ``request`` (the tool asked for zero or disabled the test) or ``timeout``.
+    stalled_at_s
+        Bus time at which the engine stalled or ran away (None: it did not).
+    """
+
+    bus_time_s: float = 0.0
+    frames_sent: int = 0
+    faults: Counter[str] = field(default_factory=Counter)
+    requests_accepted: int = 0
+    requests_dropped: dict[str, int] = field(default_factory=dict)
+    last_request_s: float | None = None
+    zero_after_s: float | None = None
+    zero_cause: str | None = None
+    stalled_at_s: float | None = None
+
+    def as_dict(self) -> dict[str, object]:
+        """The report as a JSON-ready dictionary."""
+        return {
+            "bus_time_s": self.bus_time_s,
+            "frames_sent": self.frames_sent,
+            "faults": dict(self.faults),
+            "requests_accepted": self.requests_accepted,
+            "requests_dropped": dict(self.requests_dropped),
+            "last_request_s": self.last_request_s,
+            "zero_after_s": self.zero_after_s,
+            "zero_cause": self.zero_cause,
+            "stalled_at_s": self.stalled_at_s,
+        }
+
+
+class VirtualVehicle:
+    """The plant as an engine ECU on a python-can bus.
+
+    Parameters
+    ----------
+    bus
+        The bus (any python-can interface).
+    interface
+        DBC and signal map of the frames.
+    plant
+        The drivetrain to run.
+    speedup
+        Bus time per wall time (1: real time).
+    faults
+        Faults on the vehicle's own frames.
+    setpoint_step
+        Optional set-point disturbance.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        interface: VehicleInterface,
+        plant: PlantStepper,
+        speedup: float = 1.0,
+        faults: BusFaults | None = None,
+        setpoint_step: SetpointStep | None = None,
+    ) -> None:
+        if not (math.isfinite(speedup) and speedup > 0):
+            raise ConfigError(f"speedup must be > 0, got {speedup}")
+        self.bus = bus
+        self.plant = plant
+        self.speedup = speedup
+        self.faults = faults or BusFaults()
+        self.setpoint_step = setpoint_step
+        self.receiver = RequestReceiver(interface)
+        self.ecu = EcuFrames(interface)
+        self.report = VehicleReport()
+        self._rng = np.random.default_rng(self.faults.seed)
+        self._applied = 0.0
+
+    def run(self, duration_s: float | None = None, stop: Event | None = None) -> VehicleReport:
+        """Run until ``duration_s`` of bus time has passed or ``stop`` is set.
+
+        Returns
+        -------
+        VehicleReport
+        """
+        stop = stop or Event()
+        start_wall = time.monotonic()
+        start_epoch = time.time()
+        step_pending = self.setpoint_step
+        while not stop.is_set():
+            now = (time.monotonic() - start_wall) * self.speedup
+            if duration_s is not None:
+                now = min(now, duration_s)
+            if step_pending is not None and now >= step_pending.at_s:
+                self.plant.set_setpoint(step_pending.setpoint_rpm)
+                step_pending = None
+            self._advance_to(now, start_epoch)
+            if duration_s is not None and now >= duration_s:
+                break
+            self._receive_until(time.monotonic() + TICK_S, start_wall)
+        self.report.bus_time_s = self.plant.time_s
+        self.report.requests_accepted = self.receiver.accepted
+        self.report.requests_dropped = dict(self.receiver.dropped)
+        return self.report
+
+    def _receive_until(self, deadline_wall: float, start_wall: float) -> None:
+        """Take the frames arriving before ``deadline_wall`` (monotonic time)."""
+        while (remaining := deadline_wall - time.monotonic()) > 0:
+            frame = self.bus.recv(timeout=remaining)
+            if frame is None:
+                return
+            if self.receiver.is_request(frame):
+                arrival = (time.monotonic() - start_wall) * self.speedup
+                self.receiver.receive(frame, max(arrival, self.plant.time_s))
+
+    def _advance_to(self, now: float, start_epoch: float) -> None:
+        """Advance the plant to bus time ``now`` in segments and send their frames."""
+        while self.plant.time_s < now and not self.plant.stalled:
+            t_end = min(now, self.plant.time_s + MAX_SEGMENT_S)
+            self._track_applied(self.plant.time_s)
+            speed, torque = self.plant.advance(t_end, self._applied)
+            frames = self.ecu.speed_frames(speed[:, :3]) + self.ecu.stroke_frames(torque)
+            frames.sort(key=lambda frame: frame.timestamp)
+            for frame in frames:
+                self._send(frame, start_epoch)
+            if self.plant.stalled and self.report.stalled_at_s is None:
+                self.report.stalled_at_s = self.plant.time_s
+
+    def _track_applied(self, now: float) -> None:
+        """Update the applied test torque and note when it goes to zero, and why."""
+        applied = self.receiver.test_torque(now)
+        if applied != 0.0:
+            self.report.zero_after_s = None
+            self.report.zero_cause = None
+        elif self._applied != 0.0:
+            self.report.last_request_s = self.receiver.last_valid_s
+            self.report.zero_after_s = now
+            self.report.zero_cause = "timeout" if self.receiver.timed_out(now) else "request"
+        self._applied = applied
+
+    def _send(self, frame: can.Message, start_epoch: float) -> None:
+        """Send a frame (bus time stamped as wall time), with the configured faults."""
+        frame.timestamp = start_epoch + frame.timestamp / self.speedup
+        copies = 1
+        if self.faults.any:
+            draw = self._rng.random(3)
+            if draw[0] < self.faults.drop:
+                self.report.faults["dropped"] += 1
+                return
+            if draw[1] < self.faults.duplicate:
+                self.report.faults["duplicated"] += 1
+                copies = 2
+            if draw[2] < self.faults.corrupt:
+                self.report.faults["corrupted"] += 1
+                frame = can.Message(
+                    timestamp=frame.timestamp,
+                    arbitration_id=frame.arbitration_id,
+                    is_extended_id=frame.is_extended_id,
+                    data=frame.data[:-1],
+                )
+        for _ in range(copies):
+            self.bus.send(frame)
+            self.report.frames_sent += 1
