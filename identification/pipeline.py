@@ -1,12 +1,24 @@
-"""From measured tests to an identification report: search, profiles, JSON (``dtid identify``)."""
+"""From measured tests to an identification report: search, profiles, JSON (``dtid identify``).
+
+Validation data are held out: the identification sees each recording only up to
+:data:`HOLD_OUT_S` after its last identification run (before the next chirp, if that starts
+sooner), so K (eq. 24) comes from the identification runs alone and T_loss, the idle set-point
+and the combustion variation from the idle before that time. A chirp recorded later (the
+validation chirp A3 of a vehicle test) cannot change the identified parameters: the worker
+identifies while A3 is still being recorded and gets what ``dtid identify`` gets from the whole
+log. The validation runs are evaluated on each recording up to :data:`HOLD_OUT_S` after its last
+run, so what follows the test (the daemon's last frames) does not matter either.
+"""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from identification.frf import DEFAULT_RESOLUTION_HZ, FrfEstimate
 from identification.identify import (
     Identification,
     Objective,
@@ -16,14 +28,120 @@ from identification.identify import (
     identify,
     split_runs,
 )
+from identification.model_response import model_drv_db
+from identification.objective import nrmse
 from identification.parameterization import THETA_UNITS, Parameterization
 from identification.profile import Profile, profile
+from identification.runs import ZERO_FRACTION
 from identification.start_values import start_theta
 from identification.test_setup import MeasuredTest
+from identification.testdata import Series, TestData
 from simulator.parameters import DrivetrainParameters
 
 OPERATING_POINT = ("K", "T_loss")
 """Parameters measured before the drivetrain fit (eq. 24 and the idle torque); fixable too."""
+HOLD_OUT_S = 2.0
+"""Data kept after the last run a test analyses, s: one second of idle past the idle margin
+(:data:`identification.test_setup.IDLE_MARGIN_S`), and less than the test's 3 s pause."""
+
+
+@dataclass(frozen=True)
+class RunSelection:
+    """Measured tests cut :data:`HOLD_OUT_S` after the runs they analyse, with those runs.
+
+    Attributes
+    ----------
+    tests
+        One per recording that has such runs, rebuilt from its data up to the cut.
+    runs
+        Indices of the analysed runs in each test's estimates.
+    cuts_s
+        Where each test's data end, s (recording time).
+    """
+
+    tests: tuple[MeasuredTest, ...]
+    runs: tuple[tuple[int, ...], ...]
+    cuts_s: tuple[float, ...]
+
+    def estimates(self) -> list[FrfEstimate]:
+        """The analysed runs' FRFs, in order."""
+        return [t.estimates[i] for t, runs in zip(self.tests, self.runs, strict=True) for i in runs]
+
+
+def cut_time(test_torque: Series, last_end_s: float) -> float:
+    """Where a test's data are cut after a run ending at ``last_end_s``, s.
+
+    :data:`HOLD_OUT_S` after it, or just before the next non-zero test torque if that comes
+    sooner (a chirp following after a short pause is left out whole).
+    """
+    t, value = test_torque.t, test_torque.value
+    before = t <= last_end_s
+    peak = float(np.max(np.abs(value[before]))) if before.any() else 0.0
+    after = (
+        (t > last_end_s) & (t < last_end_s + HOLD_OUT_S) & (np.abs(value) > ZERO_FRACTION * peak)
+    )
+    return float(t[after][0]) if after.any() else last_end_s + HOLD_OUT_S
+
+
+def truncated(data: TestData, cut_s: float) -> TestData:
+    """The test's samples before ``cut_s``."""
+
+    def until(series: Series | None) -> Series | None:
+        return None if series is None else series.window(-np.inf, cut_s)
+
+    return TestData(
+        speed=until(data.speed),
+        mean_torque=until(data.mean_torque),
+        test_torque=until(data.test_torque),
+        torque_request=until(data.torque_request),
+    )
+
+
+def _select(
+    tests: Sequence[MeasuredTest],
+    identify_amplitudes: Sequence[float] | None,
+    validation: bool,
+    resolution_hz: float,
+) -> RunSelection:
+    ident, valid = split_runs(tests, identify_amplitudes)
+    chosen = sorted(
+        {
+            round(t.estimates[i].run.amplitude_nm, 3)
+            for t, runs in zip(tests, ident, strict=True)
+            for i in runs
+        }
+    )
+    picked = valid if validation else ident
+    selected, indices, cuts = [], [], []
+    for test, runs in zip(tests, picked, strict=True):
+        if not runs:
+            continue
+        last = max(range(len(test.estimates)) if validation else runs)
+        cut = cut_time(test.data.test_torque, test.estimates[last].run.end_s)
+        kept = MeasuredTest.from_data(test.name, truncated(test.data, cut), resolution_hz)
+        again_ident, again_valid = split_runs([kept], chosen)
+        selected.append(kept)
+        indices.append(tuple((again_valid if validation else again_ident)[0]))
+        cuts.append(cut)
+    return RunSelection(tuple(selected), tuple(indices), tuple(cuts))
+
+
+def identification_runs(
+    tests: Sequence[MeasuredTest],
+    identify_amplitudes: Sequence[float] | None = None,
+    resolution_hz: float = DEFAULT_RESOLUTION_HZ,
+) -> RunSelection:
+    """The identification runs (see :func:`identification.identify.split_runs`), held out."""
+    return _select(tests, identify_amplitudes, False, resolution_hz)
+
+
+def validation_runs(
+    tests: Sequence[MeasuredTest],
+    identify_amplitudes: Sequence[float] | None = None,
+    resolution_hz: float = DEFAULT_RESOLUTION_HZ,
+) -> RunSelection:
+    """The validation runs: every run whose amplitude does not identify."""
+    return _select(tests, identify_amplitudes, True, resolution_hz)
 
 
 @dataclass(frozen=True)
@@ -47,6 +165,34 @@ class IdentificationReport:
     fixed: Mapping[str, float]
     gain: float
     t_loss: float
+    fit: RunSelection | None = None
+    validation: RunSelection | None = None
+
+    def validated(self, selection: RunSelection) -> IdentificationReport:
+        """The report with the validation NRMSE of the identified parameters on these runs."""
+        params = self.identification.parameters.as_array()[None]
+        scores = {}
+        for test, runs in zip(selection.tests, selection.runs, strict=True):
+            model = model_drv_db(params, test.model_test(runs))
+            for i, db in zip(runs, model, strict=True):
+                label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
+                scores[label] = float(nrmse(test.estimates[i].drv_db, db)[0])
+        result = dataclasses.replace(self.identification, validation_nrmse=scores)
+        return dataclasses.replace(self, identification=result, validation=selection)
+
+    def fit_curves(self) -> tuple[list[FrfEstimate], list[np.ndarray], list[str]]:
+        """Measured FRFs, the identified model's |G_DRV| (dB) and the role of each run (Fig. 6)."""
+        params = self.identification.parameters.as_array()[None]
+        measured, model, roles = [], [], []
+        for role, selection in (("fit", self.fit), ("validation", self.validation)):
+            if selection is None:
+                continue
+            for test, runs in zip(selection.tests, selection.runs, strict=True):
+                for i, db in zip(runs, model_drv_db(params, test.model_test(runs)), strict=True):
+                    measured.append(test.estimates[i])
+                    model.append(db[0])
+                    roles.append(role)
+        return measured, model, roles
 
     def as_dict(self) -> dict[str, object]:
         """The JSON document of ``dtid identify``."""
@@ -80,8 +226,9 @@ def run_identification(
     settings: SearchSettings | None = None,
     profile_points: int = 5,
     progress: Progress | None = None,
+    resolution_hz: float = DEFAULT_RESOLUTION_HZ,
 ) -> IdentificationReport:
-    """Identify from measured tests and profile every free parameter.
+    """Identify from measured tests, profile every free parameter and validate.
 
     Parameters
     ----------
@@ -101,29 +248,57 @@ def run_identification(
         Grid points per profile; 0 skips the profiles (no intervals, no verdicts).
     progress
         Progress callback.
+    resolution_hz
+        Welch resolution the tests were estimated with.
+    """
+    selection = identification_runs(tests, identify_amplitudes, resolution_hz)
+    report = identify_runs(selection, prior, fixed, bounds, settings, profile_points, progress)
+    return report.validated(validation_runs(tests, identify_amplitudes, resolution_hz))
+
+
+def identify_runs(
+    selection: RunSelection,
+    prior: DrivetrainParameters,
+    fixed: Mapping[str, float] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    settings: SearchSettings | None = None,
+    profile_points: int = 5,
+    progress: Progress | None = None,
+) -> IdentificationReport:
+    """Identify from held-out identification runs and profile; no validation yet.
+
+    See :func:`run_identification` for the parameters; :meth:`IdentificationReport.validated`
+    adds the validation.
     """
     fixed = dict(fixed or {})
+    tests = selection.tests
+    ident = [list(runs) for runs in selection.runs]
     operating = {name: fixed.pop(name) for name in OPERATING_POINT if name in fixed}
-    gain = operating["K"] if "K" in operating else engine_gain(tests)
+    gain = (
+        operating["K"]
+        if "K" in operating
+        else engine_gain(
+            [
+                dataclasses.replace(t, estimates=tuple(t.estimates[i] for i in runs))
+                for t, runs in zip(tests, ident, strict=True)
+            ]
+        )
+    )
     t_loss = (
         operating["T_loss"]
         if "T_loss" in operating
         else float(np.mean([t.idle_torque_nm for t in tests]))
     )
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds)
-    ident, valid = split_runs(tests, identify_amplitudes)
-    start = start_theta(
-        [t.estimates[i] for t, runs in zip(tests, ident, strict=True) for i in runs], prior
-    )
-    result = identify(tests, par, ident, valid, settings, progress, start=start)
+    start = start_theta(selection.estimates(), prior)
+    result = identify(tests, par, ident, [[] for _ in tests], settings, progress, start=start)
     profiles: dict[str, Profile] = {}
     if profile_points:
-        used = [(t, runs) for t, runs in zip(tests, ident, strict=True) if runs]
-        measured_db = [t.estimates[i].drv_db for t, runs in used for i in runs]
+        measured_db = [e.drv_db for e in selection.estimates()]
         objective = Objective(
             par,
-            [t.model_test(runs) for t, runs in used],
-            [[t.estimates[i].drv_db for i in runs] for t, runs in used],
+            [t.model_test(runs) for t, runs in zip(tests, ident, strict=True)],
+            [[t.estimates[i].drv_db for i in runs] for t, runs in zip(tests, ident, strict=True)],
         )
         for step, name in enumerate(par.free):
             if progress:
@@ -136,4 +311,6 @@ def run_identification(
                 points=profile_points,
                 seed=(settings or SearchSettings()).seed,
             )
-    return IdentificationReport(result, profiles, {**fixed, **operating}, gain, t_loss)
+    return IdentificationReport(
+        result, profiles, {**fixed, **operating}, gain, t_loss, fit=selection
+    )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -93,6 +94,45 @@ def _in_time_order(series: RoleSeries, start: float, path: Path) -> RoleSeries:
     )
 
 
+def recording_from_series(
+    path: Path,
+    decoded: Mapping[str, RoleSeries],
+    start_s: float,
+    n_frames: int,
+    end_s: float,
+    missing_roles: tuple[str, ...],
+) -> Recording:
+    """A recording from decoded series with absolute times: the one constructor of both paths.
+
+    :func:`load_recording` (a log file) and the worker (the daemon's samples events) both build
+    their recordings here, so the same frames give the same series: times made relative to
+    ``start_s`` (the log's first frame), rounded to :data:`TIME_RESOLUTION_S` and sorted stably.
+
+    Parameters
+    ----------
+    path
+        The log file (for names and messages).
+    decoded
+        Series per mapped role, absolute timestamps, in receive order.
+    start_s
+        Timestamp of the log's first frame, s.
+    n_frames
+        Frames recorded.
+    end_s
+        Timestamp of the last frame, s.
+    missing_roles
+        Required roles the signal map does not define.
+    """
+    roles = {role: _in_time_order(series, start_s, path) for role, series in decoded.items()}
+    return Recording(
+        path=path,
+        n_frames=n_frames,
+        duration_s=end_s - start_s,
+        roles=roles,
+        missing_roles=missing_roles,
+    )
+
+
 def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) -> Recording:
     """Read and decode a CAN recording (.blf, .asc or candump .log).
 
@@ -107,13 +147,11 @@ def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) ->
     """
     path = Path(path)
     frames = read_log(path)
-    start = frames[0].timestamp
-    decoded = interface.decode(frames)
-    roles = {role: _in_time_order(series, start, path) for role, series in decoded.items()}
-    return Recording(
-        path=path,
-        n_frames=len(frames),
-        duration_s=frames[-1].timestamp - start,
-        roles=roles,
-        missing_roles=interface.missing_roles(),
+    return recording_from_series(
+        path,
+        interface.decode(frames),
+        frames[0].timestamp,
+        len(frames),
+        frames[-1].timestamp,
+        interface.missing_roles(),
     )

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from dtid.commands.common import (
     add_interface_options,
@@ -20,7 +22,6 @@ from dtid.commands.common import (
 )
 from dtid.errors import ConfigError
 from identification.identify import SearchSettings
-from identification.model_response import model_drv_db
 from identification.parameterization import THETA_NAMES
 from identification.pipeline import OPERATING_POINT, run_identification
 from simulator.parameters import load_parameters, reference_parameters
@@ -53,12 +54,34 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         help="parameter set (TOML) the default +-100 %% bounds centre on (default: reference)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the search")
+    add_search_options(parser)
+    parser.add_argument("--json", type=Path, help="write the result as JSON")
+    parser.add_argument("--plot", type=Path, help="overlay measured and identified FRFs (Fig. 6)")
+    add_interface_options(parser)
+    parser.set_defaults(run=run)
+
+
+def add_search_options(parser: argparse.ArgumentParser) -> None:
+    """Add the search's seed and budget (``dtid identify`` and ``dtid worker``)."""
+    defaults = SearchSettings()
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of the search")
     parser.add_argument(
         "--generations",
         type=int,
-        default=SearchSettings().generations,
+        default=defaults.generations,
         help="differential evolution generations (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--popsize",
+        type=int,
+        default=defaults.popsize,
+        help="differential evolution population per free parameter (default: %(default)s)",
+    )
+    parser.add_argument(
+        "--polish-evaluations",
+        type=int,
+        default=defaults.polish_evaluations,
+        help="objective evaluations of the local polish (default: %(default)s)",
     )
     parser.add_argument(
         "--profile-points",
@@ -66,10 +89,39 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=5,
         help="grid points per profile; 0 skips intervals and verdicts (default: %(default)s)",
     )
-    parser.add_argument("--json", type=Path, help="write the result as JSON")
-    parser.add_argument("--plot", type=Path, help="overlay measured and identified FRFs (Fig. 6)")
-    add_interface_options(parser)
-    parser.set_defaults(run=run)
+
+
+def search_settings(args: argparse.Namespace) -> SearchSettings:
+    """The search settings of :func:`add_search_options`; a budget below 1 is refused."""
+    for option in ("generations", "popsize", "polish_evaluations"):
+        if getattr(args, option) < 1:
+            raise ConfigError(f"--{option.replace('_', '-')} must be at least 1")
+    if args.profile_points < 0:
+        raise ConfigError("--profile-points must be 0 (no profiles) or more")
+    return SearchSettings(
+        popsize=args.popsize,
+        generations=args.generations,
+        polish_evaluations=args.polish_evaluations,
+        seed=args.seed,
+    )
+
+
+def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> None:
+    """The identified parameters, intervals, verdicts and NRMSEs of a result on the terminal."""
+    for name, value in document["parameters"].items():
+        interval = document["intervals"].get(name)
+        verdict = document["identifiable"].get(name, "fixed" if name in fixed else "")
+        span = ""
+        if interval:
+            lo, hi = interval["lower"], interval["upper"]
+            span = (
+                f"[{'-inf' if lo is None else f'{lo:.4g}'}, {'inf' if hi is None else f'{hi:.4g}'}]"
+            )
+        print(f"{name:>6} = {value:<12.5g} {span:<26} {verdict}")
+    for role, values in document["nrmse"].items():
+        for label, value in values.items():
+            print(f"NRMSE {role:<10} {label}: {value:.3f}")
+    print(f"{document['parameter_sets']} parameter sets simulated in {document['seconds']:.0f} s")
 
 
 def parse_fixed(items: list[str]) -> dict[str, float]:
@@ -103,6 +155,7 @@ def _progress(stage: str, step: int, steps: int, best: float) -> None:
 def run(args: argparse.Namespace) -> int:
     """Identify, print the result, write JSON and plot as asked."""
     fixed = parse_fixed(args.fix)
+    settings = search_settings(args)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
     tests = measured_tests(args.recordings, args.dbc, args.signals)
     report = run_identification(
@@ -110,42 +163,16 @@ def run(args: argparse.Namespace) -> int:
         prior,
         fixed=fixed,
         identify_amplitudes=args.identify,
-        settings=SearchSettings(generations=args.generations, seed=args.seed),
+        settings=settings,
         profile_points=args.profile_points,
         progress=_progress,
     )
-    document = report.as_dict()
-    for name, value in document["parameters"].items():
-        interval = document["intervals"].get(name)
-        verdict = document["identifiable"].get(name, "fixed" if name in fixed else "")
-        span = ""
-        if interval:
-            lo, hi = interval["lower"], interval["upper"]
-            span = (
-                f"[{'-inf' if lo is None else f'{lo:.4g}'}, {'inf' if hi is None else f'{hi:.4g}'}]"
-            )
-        print(f"{name:>6} = {value:<12.5g} {span:<26} {verdict}")
-    for role, values in document["nrmse"].items():
-        for label, value in values.items():
-            print(f"NRMSE {role:<10} {label}: {value:.3f}")
-    print(
-        f"{report.identification.parameter_sets} parameter sets simulated in "
-        f"{report.identification.seconds:.0f} s"
-    )
+    print_report(report.as_dict(), fixed)
     if args.json:
-        write_json(args.json, document)
+        write_json(args.json, report.as_dict())
     if args.plot:
         from identification.plots import plot_fit
 
-        params = report.identification.parameters.as_array()[None]
-        measured, model, roles = [], [], []
-        for test in tests:
-            indices = list(range(len(test.estimates)))
-            for i, db in zip(indices, model_drv_db(params, test.model_test(indices)), strict=True):
-                measured.append(test.estimates[i])
-                model.append(db[0])
-                label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
-                roles.append("fit" if label in report.identification.fit_nrmse else "validation")
-        plot_fit(measured, model, roles, args.plot)
+        plot_fit(*report.fit_curves(), args.plot)
         print(f"plot: {args.plot}")
     return 0

@@ -1,0 +1,610 @@
+"""The identification worker (issue 4): event merging, live == replay == `dtid identify`, restart.
+
+A simulated test (5 and 10 N*m identify, 2 N*m validates, 20 s chirps) is cut into the daemon's
+events (acquisition.stream's contract) and served by a fake daemon over ipc: PUB of the events,
+REP of the kept ones. The worker's results are compared with ``dtid identify`` and ``dtid frf``
+on the log written from the same frames.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import zmq
+
+from acquisition.config import AcquisitionConfig, PipelineConfig, TestConfig
+from acquisition.logfile import write_log
+from acquisition.stream import encode_event, samples_roles
+from dbc.loader import load_interface
+from dtid.cli import main
+from identification.identify import SearchSettings
+from identification.live import EventLog, LiveSession
+from identification.pipeline import HOLD_OUT_S
+from identification.recording import load_recording
+from identification.worker import Worker, WorkerOptions, endpoint
+from simulator.simulate import SimulationOptions, simulate
+from simulator.vehicle_frames import simulation_frames
+
+ROOT = Path(__file__).resolve().parents[1]
+BASE_S = 1_700_000_000.123456789
+"""Bus time of the test's start: Unix-epoch timestamps, as the daemon records."""
+BLOCK_S = 0.25
+"""Bus time per samples event."""
+BUDGET = SearchSettings(popsize=2, generations=2, polish_evaluations=20, seed=3)
+BUDGET_ARGS = ["--seed", "3", "--generations", "2", "--popsize", "2", "--polish-evaluations", "20"]
+PLAN = TestConfig(amplitudes_nm=(5.0, 10.0), validation_nm=2.0, duration_s=20.0)
+
+
+@dataclass
+class SimulatedSession:
+    """A session as the daemon would stream and log it."""
+
+    events: list[dict[str, Any]]
+    log_path: Path
+    frames: int
+    chirp_ends_s: list[float]
+
+
+def _events(frames: Sequence, log_path: Path, session: str) -> SimulatedSession:
+    interface = load_interface()
+    plan = PLAN.plan()
+    start = frames[0].timestamp
+    times = np.array([f.timestamp for f in frames])
+    marks = [(start, "settle", None, None)]
+    for index, chirp in enumerate(plan.chirps):
+        marks.append((BASE_S + chirp.start_s, "chirp", index, chirp.amplitude_nm))
+        marks.append((BASE_S + chirp.end_s, "pause", None, None))
+    marks.append((BASE_S + plan.end_s, "done", None, None))
+    events: list[dict[str, Any]] = [
+        {
+            "kind": "session",
+            "session": session,
+            "seq": 0,
+            "log_path": str(log_path),
+            "log_start_s": start,
+            "plan": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(PLAN).items()},
+            "interface": {"dbc": None, "signals": None},
+            "time_factor": 1.0,
+        }
+    ]
+
+    def add(kind: str, **keys: Any) -> None:
+        events.append({"kind": kind, "session": session, "seq": len(events), **keys})
+
+    edges = np.arange(start, times[-1] + BLOCK_S, BLOCK_S)
+    for lo, hi in itertools.pairwise(edges):
+        # a phase is announced as soon as its time comes, before the frames of the block it
+        # falls in: the worker must wait for the data itself
+        while marks and marks[0][0] < hi:
+            t, phase, chirp, amplitude = marks.pop(0)
+            add("phase", phase=phase, t_s=t, chirp=chirp, amplitude_nm=amplitude)
+        a, b = np.searchsorted(times, [lo, hi])
+        chunk = frames[a:b]
+        if chunk:
+            roles = samples_roles(interface.decode(chunk))
+            add("samples", roles=roles, frames=len(chunk), received_wall_s=time.time())
+        if len(events) % 40 == 0:
+            add("health", lost=0, duplicated=0, out_of_order=0, bad_frames=0, foreign_tx=0)
+    for t, phase, chirp, amplitude in marks:
+        add("phase", phase=phase, t_s=t, chirp=chirp, amplitude_nm=amplitude)
+    add("end", status="completed", reason=None, t_s=float(times[-1]))
+    ends = [c.end_s for c in plan.chirps]
+    return SimulatedSession(events, log_path, len(frames), ends)
+
+
+@pytest.fixture(scope="module")
+def session(reference, tmp_path_factory: pytest.TempPathFactory) -> SimulatedSession:
+    """The simulated session's events, and its log written from the same frames."""
+    result = simulate(reference, PLAN.plan(), SimulationOptions(), seed=5)
+    frames = simulation_frames(result, load_interface())
+    for frame in frames:
+        frame.timestamp += BASE_S
+    log_path = tmp_path_factory.mktemp("session") / "test.blf"
+    write_log(log_path, frames)
+    return _events(frames, log_path, "s1")
+
+
+class FakeDaemon:
+    """The daemon's side of the pipeline: PUB of events (paced), REP of the kept ones.
+
+    Parameters
+    ----------
+    pipeline
+        Endpoints.
+    events
+        The session's events, in seq order.
+    bus_per_wall
+        Pace: bus seconds streamed per wall second (samples events are 0.25 s of bus time).
+    drop, duplicate
+        Seqs not sent live (but kept), and seqs sent twice.
+    """
+
+    def __init__(
+        self,
+        pipeline: PipelineConfig,
+        events: list[dict[str, Any]],
+        bus_per_wall: float = 1e9,
+        drop: frozenset[int] = frozenset(),
+        duplicate: frozenset[int] = frozenset(),
+    ) -> None:
+        self.pipeline, self.events = pipeline, events
+        self.bus_per_wall, self.drop, self.duplicate = bus_per_wall, drop, duplicate
+        self.kept: list[dict[str, Any]] = []
+        self.requests: list[int] = []
+        self.stop = threading.Event()
+        self.done = threading.Event()
+        self.go = threading.Event()
+        self.context = zmq.Context()
+        self.pub = self.context.socket(zmq.PUB)
+        self.pub.bind(endpoint(pipeline.blocks, bind=True))
+        self.rep = self.context.socket(zmq.REP)
+        self.rep.bind(endpoint(pipeline.replay, bind=True))
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _serve_replay(self, timeout_ms: int) -> None:
+        if self.rep.poll(timeout_ms):
+            request = json.loads(self.rep.recv())
+            self.requests.append(request["from_seq"])
+            kept = [e for e in self.kept if e["seq"] >= request["from_seq"]]
+            self.rep.send(json.dumps(kept).encode())
+
+    def _run(self) -> None:
+        started, bus = None, self.events[0]["log_start_s"]
+        for event in self.events:
+            if self.stop.is_set():
+                break
+            while not self.go.is_set() and not self.stop.is_set():
+                self._serve_replay(10)
+            started = started or time.monotonic()
+            bus = _bus_time(event) or bus
+            due = started + (bus - self.events[0]["log_start_s"]) / self.bus_per_wall
+            while (wait := due - time.monotonic()) > 0 and not self.stop.is_set():
+                self._serve_replay(max(1, int(wait * 1000)))
+            self.kept.append(event)
+            if event["seq"] not in self.drop:
+                self.pub.send_multipart(encode_event(event))
+            if event["seq"] in self.duplicate:
+                self.pub.send_multipart(encode_event(event))
+            self._serve_replay(0)
+        self.done.set()
+        while not self.stop.is_set():
+            self._serve_replay(20)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(5)
+        self.pub.close(linger=0)
+        self.rep.close(linger=0)
+        self.context.term()
+
+
+def _bus_time(event: dict[str, Any]) -> float | None:
+    """When the daemon sends an event: its time, or its last sample's."""
+    if event["kind"] == "samples":
+        return max((entry["t"][-1] for entry in event["roles"].values()), default=None)
+    return event.get("t_s")
+
+
+@pytest.fixture
+def ipc_dir() -> Iterator[Path]:
+    """A short folder for ipc endpoints (a Unix socket path has at most 107 bytes)."""
+    folder = Path(tempfile.mkdtemp(prefix="dtidw-", dir="/tmp"))
+    yield folder
+    shutil.rmtree(folder, ignore_errors=True)
+
+
+def _pipeline(folder: Path) -> PipelineConfig:
+    return PipelineConfig(
+        **{name: f"ipc://{folder}/{name}" for name in ("blocks", "replay")},
+        results=f"ipc://{folder}/results",
+    )
+
+
+def _config_file(folder: Path, pipeline: PipelineConfig) -> Path:
+    path = folder / "dtid.toml"
+    path.write_text(
+        "[pipeline]\n"
+        + "".join(
+            f'{name} = "{getattr(pipeline, name)}"\n' for name in ("blocks", "replay", "results")
+        )
+    )
+    return path
+
+
+def _serve(
+    pipeline: PipelineConfig, options: WorkerOptions, timeout_s: float = 60.0
+) -> tuple[int, list[tuple[str, dict[str, Any]]], Worker]:
+    """Run a worker with --once in a thread; its messages and exit status."""
+    worker = Worker(pipeline, options)
+    messages: list[tuple[str, dict[str, Any]]] = []
+    worker.listeners.append(lambda topic, doc: messages.append((topic, doc)))
+    status: list[int] = []
+    stop = threading.Event()
+    thread = threading.Thread(target=lambda: status.append(worker.serve(once=True, stop=stop)))
+    thread.start()
+    thread.join(timeout_s)
+    if thread.is_alive():
+        stop.set()
+        thread.join(5)
+        pytest.fail(f"the worker did not finish within {timeout_s} s")
+    return status[0], messages, worker
+
+
+def _without_wall_time(document: dict[str, Any]) -> dict[str, Any]:
+    """The document less ``seconds``, the search's wall time (the one key that differs)."""
+    return {k: v for k, v in document.items() if k != "seconds"}
+
+
+# --- merging ------------------------------------------------------------------------------------
+
+
+def test_event_log_orders_drops_duplicates_and_finds_gaps() -> None:
+    log = EventLog("s")
+    event = {"kind": "health", "session": "s"}
+    assert log.add({**event, "seq": 0}) and log.add({**event, "seq": 2})
+    assert [e["seq"] for e in log.take()] == [0]
+    assert log.gap and log.next_seq == 1  # 1 is missing: ask the replay from 1
+    assert not log.add({**event, "seq": 2}) and not log.add({**event, "seq": 0})
+    assert log.duplicates == 2
+    assert log.add({**event, "seq": 1})
+    assert [e["seq"] for e in log.take()] == [1, 2]
+    assert not log.gap and log.take() == []
+
+
+def test_endpoints_are_local_unless_told() -> None:
+    assert endpoint("tcp://:5555") == "tcp://127.0.0.1:5555"
+    assert endpoint("tcp://10.0.0.2:5555") == "tcp://10.0.0.2:5555"
+    assert endpoint("tcp://*:5555") == "tcp://127.0.0.1:5555"  # the daemon's, to connect to
+    assert endpoint("tcp://*:5555", bind=True) == "tcp://*:5555"  # told: every interface
+    assert endpoint("ipc:///run/dtid/results") == "ipc:///run/dtid/results"
+    with pytest.raises(Exception, match="expected ipc"):
+        endpoint("udp://1.2.3.4:5")
+    with pytest.raises(Exception, match="HOST:PORT"):
+        endpoint("tcp://localhost")
+
+
+def test_samples_give_the_logs_recording_exactly(session: SimulatedSession) -> None:
+    """The same code builds both: every role's times, values and extras are bit-identical."""
+    interface = load_interface()
+    live = LiveSession(session.events[0], interface)
+    for event in session.events[1:]:
+        live.apply(event)
+    streamed, logged = live.recording(), load_recording(session.log_path, interface)
+    assert set(streamed.roles) == set(logged.roles)
+    for role, series in logged.roles.items():
+        other = streamed.roles[role]
+        assert len(series.timestamps) > 100
+        np.testing.assert_array_equal(other.timestamps, series.timestamps)
+        np.testing.assert_array_equal(other.values, series.values)
+        assert set(other.extra) == set(series.extra)
+        for key, column in series.extra.items():
+            np.testing.assert_array_equal(other.extra[key], column)
+    assert streamed.n_frames == logged.n_frames == session.frames
+    assert [c.amplitude_nm for c in live.chirps.values()] == [5.0, 10.0, 2.0]
+    assert all(c.end_s is not None for c in live.chirps.values())
+
+
+# --- live == replay == dtid identify -----------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def offline(session: SimulatedSession, tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """`dtid identify` and `dtid frf` on the daemon's log, same seed and budget."""
+    out = tmp_path_factory.mktemp("offline")
+    log = str(session.log_path)
+    assert main(["identify", log, "--json", str(out / "id.json"), "--profile-points", "0",
+                 *BUDGET_ARGS]) == 0  # fmt: skip
+    assert main(["frf", log, "--json", str(out / "frf.json")]) == 0
+    return {
+        "identify": json.loads((out / "id.json").read_text()),
+        "frf": json.loads((out / "frf.json").read_text())["runs"],
+    }
+
+
+@pytest.fixture(scope="module")
+def live_run(session: SimulatedSession, offline: dict) -> dict:
+    """One worker on the paced stream (10x real time), some events lost or sent twice."""
+    folder = Path(tempfile.mkdtemp(prefix="dtidw-", dir="/tmp"))
+    pipeline = _pipeline(folder)
+    n = len(session.events)
+    drop = frozenset({1, 7, n // 2, n // 2 + 1, n - 3})  # gaps, found and asked for
+    duplicate = frozenset({3, n // 3})
+    out = session.log_path.parent / "live"
+    out.mkdir()
+    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=10.0, drop=drop, duplicate=duplicate)
+    context = zmq.Context()
+    listener = context.socket(zmq.SUB)
+    listener.setsockopt(zmq.SUBSCRIBE, b"")
+    listener.connect(pipeline.results)
+    daemon.go.set()
+    options = WorkerOptions(
+        settings=BUDGET,
+        profile_points=0,
+        json_path=out / "identification.json",
+        plot_path=out / "fig6.png",
+    )
+    try:
+        status, messages, worker = _serve(pipeline, options)
+        received = []
+        while listener.poll(200):
+            topic, body = listener.recv_multipart()
+            received.append((topic.decode(), json.loads(body)))
+    finally:
+        listener.close(linger=0)
+        context.term()
+        daemon.close()
+        shutil.rmtree(folder, ignore_errors=True)
+    return {
+        "status": status,
+        "messages": messages,
+        "received": received,
+        "out": out,
+        "requests": daemon.requests,
+        "finished": worker.finished,
+    }
+
+
+def test_live_result_equals_dtid_identify_on_the_log(live_run: dict, offline: dict) -> None:
+    assert live_run["status"] == 0 and live_run["finished"] == {"s1": "completed"}
+    results = [doc for topic, doc in live_run["messages"] if topic == "result"]
+    assert len(results) == 1
+    live, replay = results[0], offline["identify"]
+    assert _without_wall_time(live) == _without_wall_time(replay)
+    assert set(live["nrmse"]["validation"]) == {f"{live_run['out'].parent}/test.blf @ 2 N*m"}
+    assert len(live["nrmse"]["fit"]) == 2
+    written = json.loads((live_run["out"] / "identification.json").read_text())
+    assert written == live
+    assert (live_run["out"] / "fig6.png").stat().st_size > 10_000
+    # the PUB carried the same result (the SUB joined before the worker published anything)
+    assert [doc for topic, doc in live_run["received"] if topic == "result"] == [live]
+
+
+def test_frfs_published_per_chirp_as_dtid_frf(live_run: dict, offline: dict) -> None:
+    frfs = [doc for topic, doc in live_run["messages"] if topic == "frf"]
+    assert [round(e["amplitude_nm"], 3) for e in frfs] == [5.0, 10.0, 2.0]
+    assert frfs == offline["frf"]  # entry for entry, the same numbers as `dtid frf` on the log
+
+
+def test_identifies_while_the_validation_chirp_is_recorded(
+    live_run: dict, session: SimulatedSession
+) -> None:
+    progress = [doc for topic, doc in live_run["messages"] if topic == "progress"]
+    stages = [p["stage"] for p in progress]
+    assert stages.index("identifying") < stages.index("identified") < stages.index("validated")
+    started = next(p for p in progress if p["stage"] == "identifying")
+    a2_end, a3_end = session.chirp_ends_s[1], session.chirp_ends_s[2]
+    # started as soon as the data past A2 arrived, long before A3 ended
+    assert a2_end + HOLD_OUT_S <= started["data_s"] < a3_end - 5.0
+    assert started["chirps"] == [5.0, 10.0]
+    searching = [p["search"] for p in progress if "search" in p]
+    assert searching and searching[-1]["stage"] in ("global", "local")
+    identified = next(p for p in progress if p["stage"] == "identified")
+    assert identified["seconds_after_chirp"] > 0
+    assert stages[-1] == "done"
+    # lost events were asked for again, from the first one missing (7 came with 1's answer)
+    n = len(session.events)
+    assert {1, n // 2, n - 3} <= set(live_run["requests"])
+
+
+# --- aborted sessions -------------------------------------------------------------------------
+
+
+def _aborted(session: SimulatedSession, at_s: float) -> list[dict[str, Any]]:
+    """The session's events until bus time ``at_s`` (from the start), then an aborted end."""
+    start = session.events[0]["log_start_s"]
+    kept = []
+    for event in session.events[:-1]:
+        t = _bus_time(event)
+        if t is not None and t - start > at_s:
+            break
+        kept.append(event)
+    end = {"kind": "end", "session": "s1", "seq": len(kept), "status": "aborted"}
+    return [*kept, {**end, "reason": "speed_window", "t_s": start + at_s}]
+
+
+def test_aborted_before_the_identification_chirps_end(
+    session: SimulatedSession, ipc_dir: Path
+) -> None:
+    """Aborted in A2: A1's FRF is published, no identification, no result file."""
+    events = _aborted(session, session.chirp_ends_s[1] - 5.0)
+    port = _free_port()
+    pipeline = PipelineConfig(
+        blocks=f"ipc://{ipc_dir}/blocks", replay=f"ipc://{ipc_dir}/replay", results=f"tcp://:{port}"
+    )
+    daemon = FakeDaemon(pipeline, events)
+    daemon.go.set()
+    out = ipc_dir / "out"
+    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=out / "r.json")
+    try:
+        status, messages, worker = _serve(pipeline, options)
+    finally:
+        daemon.close()
+    assert status == 0 and worker.finished == {"s1": "aborted"}
+    assert [round(d["amplitude_nm"], 3) for t, d in messages if t == "frf"] == [5.0]
+    assert not [d for t, d in messages if t == "result"] and not out.exists()
+    last = messages[-1][1]
+    assert last["stage"] == "aborted" and last["end"] == {
+        "status": "aborted",
+        "reason": "speed_window",
+    }
+
+
+def test_aborted_in_the_validation_chirp_identifies_without_validation(
+    session: SimulatedSession, ipc_dir: Path, offline: dict
+) -> None:
+    events = _aborted(session, session.chirp_ends_s[2] - 8.0)
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, events)
+    daemon.go.set()
+    options = WorkerOptions(
+        settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json", plot=False
+    )
+    try:
+        status, messages, worker = _serve(pipeline, options)
+    finally:
+        daemon.close()
+    assert status == 0 and worker.finished == {"s1": "aborted"}
+    (result,) = [d for t, d in messages if t == "result"]
+    assert result["nrmse"]["validation"] == {}
+    # the identification held A3 out: the parameters are those of the whole log
+    assert result["parameters"] == offline["identify"]["parameters"]
+    assert result["nrmse"]["fit"] == offline["identify"]["nrmse"]["fit"]
+    assert json.loads((ipc_dir / "r.json").read_text()) == result
+
+
+def test_replay_alone_gives_the_live_result(
+    session: SimulatedSession, ipc_dir: Path, offline: dict
+) -> None:
+    """A worker started after the session ended gets every event from the replay."""
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, session.events)
+    daemon.go.set()
+    assert daemon.done.wait(10)
+    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json")
+    try:
+        status, messages, _ = _serve(pipeline, options)
+    finally:
+        daemon.close()
+    assert status == 0 and daemon.requests[0] == 0
+    (result,) = [d for t, d in messages if t == "result"]
+    assert _without_wall_time(result) == _without_wall_time(offline["identify"])
+
+
+def test_a_new_session_resets_the_worker(
+    session: SimulatedSession, ipc_dir: Path, offline: dict
+) -> None:
+    """Session s0 breaks off without an end; s1 follows and is served from the start."""
+    first = [{**event, "session": "s0"} for event in session.events[:40]]
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, first + session.events, bus_per_wall=200.0)
+    options = WorkerOptions(
+        settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json", plot=False
+    )
+    worker = Worker(pipeline, options)
+    messages: list[tuple[str, dict[str, Any]]] = []
+    stop = threading.Event()
+
+    def listen(topic: str, document: dict[str, Any]) -> None:
+        messages.append((topic, document))
+        if document.get("session") == "s1" and document.get("stage") == "done":
+            stop.set()
+
+    worker.listeners.append(listen)
+    thread = threading.Thread(target=worker.serve, kwargs={"stop": stop})
+    thread.start()
+    daemon.go.set()
+    try:
+        thread.join(60)
+        assert not thread.is_alive()
+    finally:
+        stop.set()
+        daemon.close()
+    assert worker.finished == {"s0": "aborted", "s1": "completed"}
+    results = [d for t, d in messages if t == "result"]
+    assert len(results) == 1
+    assert _without_wall_time(results[0]) == _without_wall_time(offline["identify"])
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+# --- the command: restart, signals ------------------------------------------------------------
+
+
+def _worker_process(config: Path, *args: str) -> subprocess.Popen:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.Popen(
+        [sys.executable, "-m", "dtid.cli", "worker", "--config", str(config), *args],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_worker_killed_mid_session_catches_up_to_the_same_result(
+    session: SimulatedSession, ipc_dir: Path, offline: dict
+) -> None:
+    pipeline = _pipeline(ipc_dir)
+    config = _config_file(ipc_dir, pipeline)
+    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=8.0)
+    context = zmq.Context()
+    listener = context.socket(zmq.SUB)
+    listener.setsockopt(zmq.SUBSCRIBE, b"")
+    listener.connect(pipeline.results)
+    out = ipc_dir / "restart.json"
+    args = ["--once", "--json", str(out), "--profile-points", "0", *BUDGET_ARGS]
+    first = _worker_process(config, *args)
+    second = None
+    try:
+        daemon.go.set()
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # kill it once it has published A1's FRF
+            if listener.poll(200) and listener.recv_multipart()[0] == b"frf":
+                break
+            assert first.poll() is None, first.communicate()
+        else:
+            pytest.fail("the first worker published no FRF")
+        first.send_signal(signal.SIGKILL)
+        first.wait(10)
+        assert not daemon.done.is_set()  # killed mid-session
+        second = _worker_process(config, *args)
+        stdout, stderr = second.communicate(timeout=90)
+    finally:
+        for process in (first, second):
+            if process is not None and process.poll() is None:
+                process.kill()
+        listener.close(linger=0)
+        context.term()
+        daemon.close()
+    assert second.returncode == 0, stderr
+    result = json.loads(out.read_text())
+    assert _without_wall_time(result) == _without_wall_time(offline["identify"])
+    assert "J_sum" in stdout
+
+
+def test_worker_exits_cleanly_on_sigterm(ipc_dir: Path) -> None:
+    pipeline = _pipeline(ipc_dir)
+    process = _worker_process(_config_file(ipc_dir, pipeline))
+    try:
+        deadline = time.monotonic() + 30
+        while not (ipc_dir / "results").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)  # bound: up and serving
+        assert process.poll() is None
+        process.send_signal(signal.SIGTERM)
+        _, stderr = process.communicate(timeout=10)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 0, stderr
+
+
+def test_worker_command_rejects_a_bad_budget(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["worker", "--once", "--generations", "0"]) == 2
+    assert "--generations must be at least 1" in capsys.readouterr().err
+
+
+def test_config_default_endpoints_are_ipc() -> None:
+    pipeline = AcquisitionConfig().pipeline
+    assert all(getattr(pipeline, n).startswith("ipc://") for n in ("blocks", "replay", "results"))
