@@ -13,12 +13,8 @@ import can
 import numpy as np
 
 from dbc.interface import VehicleInterface
+from dbc.tool_state import HEARTBEAT_PERIOD_S, TOOL_CHIRP, TOOL_DONE, TOOL_SETTLING
 from simulator.simulate import SimulationResult
-
-HEARTBEAT_PERIOD_S = 0.1
-"""Period of the tool's heartbeat, s."""
-TOOL_IDLE, TOOL_SETTLING, TOOL_CHIRP, TOOL_DONE = 0, 1, 2, 4
-"""Tool states of the heartbeat (the product DBC's VAL_ table)."""
 
 _COUNTER_MODULO = {"speed": 1 << 16, "test_torque": 16}
 """Counter wrap per role (the product DBC's signal widths); 8 bits otherwise."""

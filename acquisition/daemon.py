@@ -1,0 +1,352 @@
+"""The acquisition daemon (``dtid acquire``): run one chirp test on the bus, record and stream it.
+
+The receive loop takes frames from the bus (``recv`` with a timeout of ``block_period_s``), runs
+each through :class:`acquisition.framepath.FramePath` (bus time, echo filter, raw log), and
+publishes the pending block as a ``samples`` event when ``block_period_s`` has passed since its
+first frame or when no frame is waiting: one event per frame when the bus is quiet, batches under
+load. The daemon's own frames, sent by :class:`acquisition.sequence.RequestSender` from its
+thread, join the same path. Between blocks the loop flushes the log, emits ``phase`` events at the
+plan's phase boundaries (bus time) and checks the safety envelope.
+
+The test starts when the first engine speed frame is decoded (the daemon waits up to
+``wait_s`` wall seconds for the vehicle) and ends
+
+* completed, at the end of the plan: exit status :data:`EXIT_COMPLETED`;
+* aborted (:data:`acquisition.stream.ABORT_REASONS`): speed window, vehicle timeout, a foreign
+  frame on the tool's IDs, SIGINT/SIGTERM, or any failure (bus error, exception): exit status
+  :data:`EXIT_ABORTED`. An abort sends the abort heartbeat and
+  :data:`acquisition.sequence.ZERO_REQUESTS` zero requests (``TestEnable`` 0) before the daemon
+  stops; this runs in ``finally`` blocks, so no exit of the daemon's loop skips it (only
+  ``kill -9`` does; then the vehicle's own request timeout applies).
+
+After the ``end`` event the log is closed and the replay socket stays up for ``linger_s`` (wall)
+so a restarting worker can still catch up; a further signal cuts the linger short.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import signal
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import can
+
+from acquisition.bus import open_bus
+from acquisition.clock import BusClock
+from acquisition.config import AcquisitionConfig
+from acquisition.framepath import FramePath
+from acquisition.health import EchoFilter
+from acquisition.recorder import Recorder, new_session_directory
+from acquisition.safety import SafetyMonitor
+from acquisition.sequence import ZERO_REQUESTS, Phase, RequestSender, ToolFrames, phases
+from acquisition.server import EventServer
+from acquisition.stream import ABORT_REASONS
+from dbc.loader import load_interface
+
+logger = logging.getLogger(__name__)
+
+EXIT_COMPLETED = 0
+"""Exit status of a completed test."""
+EXIT_ABORTED = 3
+"""Exit status of an aborted test."""
+DEFAULT_LINGER_S = 5.0
+"""Default wall time the replay stays up after the end event, s."""
+DEFAULT_WAIT_S = 10.0
+"""Default wall time to wait for the vehicle's first speed frame, s."""
+_FINISH_GRACE_S = 1.0
+"""Wall time allowed beyond the zero requests for the sender to finish, s."""
+
+
+@dataclass(frozen=True)
+class DaemonResult:
+    """How a test ended.
+
+    Attributes
+    ----------
+    status
+        ``completed`` or ``aborted``.
+    reason
+        Key of :data:`acquisition.stream.ABORT_REASONS` for an abort, else None.
+    session_dir
+        The session's directory.
+    log_path
+        The raw log.
+    events
+        Number of events published.
+    """
+
+    status: str
+    reason: str | None
+    session_dir: Path
+    log_path: Path
+    events: int
+
+    @property
+    def exit_status(self) -> int:
+        """:data:`EXIT_COMPLETED` or :data:`EXIT_ABORTED`."""
+        return EXIT_COMPLETED if self.status == "completed" else EXIT_ABORTED
+
+
+class Daemon:
+    """One test session on the bus.
+
+    Parameters
+    ----------
+    config
+        The configuration.
+    linger_s
+        Wall time the replay stays up after the end event, s.
+    wait_s
+        Wall time to wait for the vehicle's first speed frame before aborting, s.
+    report
+        Called with one line of text per step worth telling an operator (log path, phases, end).
+    """
+
+    def __init__(
+        self,
+        config: AcquisitionConfig,
+        linger_s: float = DEFAULT_LINGER_S,
+        wait_s: float = DEFAULT_WAIT_S,
+        report: Callable[[str], None] = lambda line: None,
+    ) -> None:
+        self.config = config
+        self.linger_s = linger_s
+        self.wait_s = wait_s
+        self.report = report
+        self._signals = 0
+        self._status: str | None = None
+        self._reason: str | None = None
+        self._t_end: float | None = None
+        self._t_start: float | None = None
+
+    def run(self) -> DaemonResult:
+        """Run the test and return how it ended.
+
+        Raises
+        ------
+        ConfigError, DbcError, RecordingError
+            If the interface, plan, bus, output or endpoints are unusable (before the test runs).
+        """
+        config = self.config
+        interface = load_interface(config.vehicle_interface.dbc, config.vehicle_interface.signals)
+        plan = config.test.plan()
+        self._tool = ToolFrames(interface, plan)
+        self._phases = phases(plan)
+        self._clock = clock = BusClock(config.bus.time_factor)
+        bus = open_bus(config.bus)
+        with contextlib.ExitStack() as cleanup:
+            cleanup.callback(bus.shutdown)
+            self._bus = bus
+            session_dir = new_session_directory(Path(config.output.directory))
+            log_path = session_dir / f"{session_dir.name}.{config.output.log_format}"
+            recorder = Recorder(
+                log_path, clock.start_wall_s, config.output.flush_period_s, config.bus.channel
+            )
+            cleanup.callback(recorder.close)
+            server = EventServer(config.pipeline, session_dir.name)
+            cleanup.callback(server.close)
+            self._recorder = recorder
+            keys = [interface.frame_key("test_torque")]
+            if "heartbeat" in interface.present_roles():
+                keys.append(interface.frame_key("heartbeat"))
+            echo = EchoFilter(keys)
+            self._sent: deque[can.Message] = deque()
+            self._sender = RequestSender(bus, self._tool, clock, echo, self._sent)
+            self._path = FramePath(interface, clock, recorder, server, echo, self._session_fields())
+            self.report(f"log: {log_path}")
+            self.report(
+                f"bus: {config.bus.interface} {config.bus.channel}; events: "
+                f"{config.pipeline.blocks} (replay {config.pipeline.replay})"
+            )
+            with self._signal_handlers():
+                try:
+                    self._loop()
+                except KeyboardInterrupt:
+                    self._abort("signal")
+                except Exception:
+                    logger.exception("the acquisition failed; aborting the test")
+                    self._abort("error")
+                finally:
+                    self._finish()
+                self._linger()
+            return DaemonResult(
+                self._status or "aborted", self._reason, session_dir, log_path, server.count
+            )
+
+    def _session_fields(self) -> dict[str, Any]:
+        config = self.config
+        plan = {
+            key: list(value) if isinstance(value, tuple) else value
+            for key, value in asdict(config.test).items()
+        }
+        paths = asdict(config.vehicle_interface)
+        return {
+            "plan": plan,
+            "interface": {key: None if p is None else str(p) for key, p in paths.items()},
+            "time_factor": config.bus.time_factor,
+        }
+
+    @contextlib.contextmanager
+    def _signal_handlers(self) -> Iterator[None]:
+        """SIGINT and SIGTERM abort the test (main thread only; elsewhere nothing changes)."""
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+
+        def handler(signum: int, frame: object) -> None:
+            self._signals += 1
+
+        previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            yield
+        finally:
+            for sig, old in previous.items():
+                signal.signal(sig, old)
+
+    def _pump(self) -> bool:
+        """Take what the bus has within one block period and publish it; True when the bus had
+        nothing more waiting at the end (every frame up to now is taken)."""
+        bus, path = self._bus, self._path
+        period = self.config.pipeline.block_period_s
+        frame = bus.recv(period)
+        self._take_sent()
+        drained = frame is None
+        if frame is not None:
+            take = path.take
+            take(frame)
+            first = time.monotonic()
+            while time.monotonic() - first < period:
+                frame = bus.recv(0)
+                if frame is None:
+                    drained = True
+                    break
+                take(frame)
+            self._take_sent()
+        if path.pending:
+            path.publish_block()
+        self._recorder.flush_if_due()
+        return drained
+
+    def _take_sent(self) -> None:
+        sent, take = self._sent, self._path.take_sent
+        while sent:
+            take(sent.popleft())
+
+    def _loop(self) -> None:
+        wait_until = time.monotonic() + self.wait_s
+        self.report(f"waiting up to {self.wait_s:g} s for the vehicle's engine speed")
+        next_phase = 0
+        while True:
+            drained = self._pump()
+            if self._signals:
+                self._abort("signal")
+            elif self._path.alarm is not None:
+                self._abort(self._path.alarm)
+            elif self._sender.failure is not None:
+                self._abort("error")
+            if self._status is not None:
+                return
+            if self._t_start is None:
+                if self._path.speed_seen:
+                    self._start()
+                elif time.monotonic() > wait_until:
+                    self._abort("vehicle_timeout")
+                continue
+            now = self._clock.now()
+            tau = now - self._t_start
+            while next_phase < len(self._phases) and self._phases[next_phase].start_s <= tau:
+                self._publish_phase(self._phases[next_phase])
+                next_phase += 1
+            if self._status is not None:
+                return
+            assert self._path.safety is not None
+            timeout = self._path.safety.check_timeout(now) if drained else None
+            if timeout is not None:
+                self._abort(timeout)
+                return
+
+    def _start(self) -> None:
+        self._t_start = t_start = self._clock.now()
+        plan = self._tool.plan
+        self._path.safety = SafetyMonitor(self.config.safety, t_start, plan.settle_s)
+        self._sender.start(t_start)
+        self.report(
+            f"test started: {len(plan.chirps)} chirps of {plan.duration_s:g} s, "
+            f"{plan.end_s:g} s in all (bus time)"
+        )
+
+    def _publish_phase(self, phase: Phase) -> None:
+        assert self._t_start is not None
+        t_s = self._t_start + phase.start_s
+        self._path.publish(
+            "phase",
+            {
+                "phase": phase.name,
+                "t_s": t_s,
+                "chirp": phase.chirp,
+                "amplitude_nm": phase.amplitude_nm,
+            },
+        )
+        text = f"{phase.start_s:8.2f} s  {phase.name}"
+        if phase.chirp is not None:
+            text += (
+                f" {phase.chirp + 1} of {len(self._tool.plan.chirps)}: {phase.amplitude_nm:g} N*m"
+            )
+        self.report(text)
+        if phase.name == "done":
+            self._status, self._t_end = "completed", t_s
+
+    def _abort(self, reason: str) -> None:
+        """Abort the test (first reason wins): stop the sequence, the zero requests go out."""
+        if self._status is not None:
+            return
+        self._status, self._reason, self._t_end = "aborted", reason, self._clock.now()
+        logger.warning("aborting the test: %s", ABORT_REASONS[reason])
+        self._sender.abort()
+
+    def _finish(self) -> None:
+        """Make sure the test is ended and the zero requests are out; take the frames still
+        waiting on the bus; publish the end."""
+        if self._status is None:
+            self._abort("error")
+        sender = self._sender
+        grace = (
+            ZERO_REQUESTS * self._tool.plan.request_period_s / self._clock.time_factor
+            + _FINISH_GRACE_S
+        )
+        deadline = time.monotonic() + grace
+        drained = False
+        with contextlib.suppress(Exception):  # the bus may be what failed
+            while (sender.running() or not drained) and time.monotonic() < deadline:
+                drained = self._pump()
+        if self._status == "aborted" and not sender.running():
+            try:
+                sender.send_zero_requests()  # when the thread never started or failed
+            except Exception:
+                logger.exception("cannot send the zero requests")
+        if sender.running():
+            logger.error("the sender did not stop within %.1f s", grace)
+        self._take_sent()
+        path = self._path
+        if path.pending:
+            path.publish_block()
+        path.publish_health()
+        path.publish("end", {"status": self._status, "reason": self._reason, "t_s": self._t_end})
+        self._recorder.close()
+        if self._status == "completed":
+            self.report("end: completed")
+        else:
+            self.report(f"end: aborted ({self._reason}: {ABORT_REASONS[self._reason]})")
+
+    def _linger(self) -> None:
+        signals = self._signals
+        until = time.monotonic() + self.linger_s
+        while time.monotonic() < until and self._signals == signals:
+            time.sleep(min(0.05, max(0.0, until - time.monotonic())))

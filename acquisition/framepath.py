@@ -1,0 +1,166 @@
+"""The daemon's per-frame path: every frame to the log, then in blocks to the event stream.
+
+For each frame taken from the bus (:meth:`FramePath.take`):
+
+1. its receive timestamp is mapped to bus time (:class:`acquisition.clock.BusClock`);
+2. on the tool's own IDs, an echo of a frame the daemon sent is dropped, anything else there is
+   counted as ``foreign_tx`` and raises the alarm (:class:`acquisition.health.EchoFilter`);
+3. it is written to the raw log (:class:`acquisition.recorder.Recorder`);
+4. it joins the pending block.
+
+The daemon's own frames join at step 3 with their sending time (:meth:`FramePath.take_sent`).
+:meth:`FramePath.publish_block` decodes the pending block with
+:meth:`dbc.VehicleInterface.decode`, updates the health counts and the safety monitor, and
+publishes one ``samples`` event; a ``health`` event follows when a count changed (at most every
+:data:`HEALTH_PERIOD_S`). The ``session`` event goes out before any other, right after the first
+frame is written to the log. All events go through :meth:`FramePath.publish`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import asdict
+from typing import Any
+
+import can
+
+from acquisition.clock import BusClock
+from acquisition.health import EchoFilter, Health
+from acquisition.recorder import Recorder
+from acquisition.safety import SafetyMonitor
+from acquisition.server import EventServer
+from acquisition.stream import samples_roles
+from dbc.interface import VehicleInterface
+
+HEALTH_PERIOD_S = 0.5
+"""Shortest wall time between two health events, s (the last counts always go out at the end)."""
+
+
+class FramePath:
+    """Record, decode, check and publish the frames of one session.
+
+    Parameters
+    ----------
+    interface
+        DBC and signal map to decode with.
+    clock
+        The bus clock.
+    recorder
+        The session's raw log.
+    server
+        The session's event server.
+    echo
+        The session's echo filter.
+    session_fields
+        Keys of the ``session`` event besides ``log_path`` and ``log_start_s`` (``plan``,
+        ``interface``, ``time_factor``).
+
+    Attributes
+    ----------
+    health : Health
+        Counts of the session.
+    safety : SafetyMonitor or None
+        Checks each block's speed once the test has started.
+    alarm : str or None
+        The first abort reason found in the frames (``foreign_tx`` or ``speed_window``).
+    speed_seen : bool
+        True once a speed frame was decoded.
+    """
+
+    def __init__(
+        self,
+        interface: VehicleInterface,
+        clock: BusClock,
+        recorder: Recorder,
+        server: EventServer,
+        echo: EchoFilter,
+        session_fields: Mapping[str, Any],
+    ) -> None:
+        self._interface = interface
+        self._clock = clock
+        self._recorder = recorder
+        self._write = recorder.write
+        self._server = server
+        self._echo = echo
+        self._tx_ids = echo.tx_ids
+        self._session_fields = dict(session_fields)
+        self._pending: list[can.Message] = []
+        self._first_wall: float | None = None
+        self._last_health: tuple[int, ...] = (0, 0, 0, 0, 0)
+        self._last_health_wall = 0.0
+        self.health = Health(interface)
+        self.safety: SafetyMonitor | None = None
+        self.alarm: str | None = None
+        self.speed_seen = False
+
+    @property
+    def pending(self) -> int:
+        """Frames waiting for the next samples event."""
+        return len(self._pending)
+
+    def take(self, frame: can.Message) -> None:
+        """Take a received frame (timestamp: wall receive time, s)."""
+        wall = frame.timestamp
+        if not self._clock.identity:
+            frame.timestamp = self._clock.to_bus(wall)
+        if frame.arbitration_id in self._tx_ids and self._echo.is_tool_frame(frame):
+            if self._echo.is_echo(frame):
+                return
+            self.health.counts.foreign_tx += 1
+            self.alarm = self.alarm or "foreign_tx"
+        self._write(frame)
+        if not self._pending:
+            self._first_wall = wall
+        self._pending.append(frame)
+
+    def take_sent(self, frame: can.Message) -> None:
+        """Take a frame the daemon sent (timestamp: bus time of sending, s)."""
+        self._write(frame)
+        if not self._pending:
+            self._first_wall = self._clock.to_wall(frame.timestamp)
+        self._pending.append(frame)
+
+    def publish_block(self) -> None:
+        """Decode the pending frames, check them and publish their samples event."""
+        frames, self._pending = self._pending, []
+        decoded = self._interface.decode(frames)
+        self.health.update(decoded)
+        speed = decoded.get("speed")
+        if speed is not None and len(speed.timestamps):
+            self.speed_seen = True
+            if self.safety is not None:
+                self.alarm = self.alarm or self.safety.on_speed(speed.timestamps, speed.values)
+        self.publish(
+            "samples",
+            {
+                "roles": samples_roles(decoded),
+                "frames": len(frames),
+                "received_wall_s": self._first_wall,
+            },
+        )
+        counts = self.health.counts.anomalies()
+        now = time.monotonic()
+        if counts != self._last_health and now - self._last_health_wall >= HEALTH_PERIOD_S:
+            self.publish_health()
+
+    def publish_health(self) -> None:
+        """Publish the current health counts."""
+        counts = self.health.counts
+        counts.frames = self._recorder.frames
+        self._last_health = counts.anomalies()
+        self._last_health_wall = time.monotonic()
+        self.publish("health", asdict(counts))
+
+    def publish(self, kind: str, fields: Mapping[str, Any]) -> dict[str, Any]:
+        """Publish an event, after the ``session`` event if that has not gone out yet."""
+        if self._server.count == 0:
+            self._server.publish(
+                "session",
+                {
+                    "log_path": str(self._recorder.path),
+                    "log_start_s": self._recorder.first_timestamp,
+                    **self._session_fields,
+                },
+            )
+        return self._server.publish(kind, fields)

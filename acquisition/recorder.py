@@ -1,0 +1,198 @@
+"""The raw CAN log of a test session, written with python-can's writers and safe against a crash.
+
+Every frame the daemon receives and every frame it sends (``is_rx`` False) is written here before
+anything else reads it; the log alone is enough to redo every result offline. Formats by suffix:
+``.blf`` (default), ``.asc`` and ``.log`` (candump -L), as :mod:`acquisition.logfile` reads them.
+
+Crash safety: python-can's writers keep frames in memory (the BLF writer up to a 128 KiB
+container; the text writers in Python's file buffer) and complete the file only when stopped. The
+recorder therefore checkpoints at least every ``flush_period_s``: it writes what is buffered,
+hands it to the kernel and ``fsync``-s it, so a ``kill -9`` or a power loss loses at most the
+frames of the last period. For BLF this alone is not enough: python-can writes the file header
+(start time, file size) only when it closes the file, so a file never closed has no start time
+and its frames read back shifted by an unknown offset. The BLF writer here sets the start time
+when it opens the file (the daemon's start, truncated to the millisecond as BLF stores it) and
+rewrites the header at each checkpoint with the start time and the file size of a file still
+being written (the header size, python-can's own mark of an open file). :func:`read_log` reads
+such a file up to the last complete frame, with a warning, however the writing was cut (also in
+the middle of a container); the frames before the cut keep their absolute timestamps. On a clean
+close the header gets the true size, as python-can writes it.
+
+A log never replaces an existing file: each test gets its own session directory named from the
+UTC time, and the log is created exclusively.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import time
+from pathlib import Path
+from typing import BinaryIO
+
+import can
+from can.io.blf import FILE_HEADER_SIZE
+from can.io.generic import FileIOMessageWriter
+
+from dtid.errors import RecordingError
+
+SUFFIXES = (".blf", ".asc", ".log")
+"""Log formats the recorder writes, by suffix."""
+_CHANNEL_TOKEN = re.compile(r"^[\w.:-]+$")
+
+
+def new_session_directory(parent: Path, now_s: float | None = None) -> Path:
+    """Create the directory of a new test session under ``parent``.
+
+    Parameters
+    ----------
+    parent
+        ``[output] directory``; created if missing.
+    now_s
+        Time the name is taken from, s since the Unix epoch (UTC); now if omitted.
+
+    Returns
+    -------
+    Path
+        ``parent/YYYYmmddTHHMMSSZ``, with ``-2``, ``-3``, ... appended when that exists already.
+
+    Raises
+    ------
+    RecordingError
+        If the directory cannot be created.
+    """
+    stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(now_s))
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        number = 1
+        while True:
+            candidate = parent / (stamp if number == 1 else f"{stamp}-{number}")
+            try:
+                candidate.mkdir()
+            except FileExistsError:
+                number += 1
+                continue
+            return candidate
+    except OSError as error:
+        raise RecordingError(
+            f"cannot create a session directory in {parent}: {error.strerror or error}"
+        ) from error
+
+
+class CrashSafeBLFWriter(can.BLFWriter):
+    """python-can's BLF writer with a start time from the first byte and header checkpoints.
+
+    Parameters
+    ----------
+    file
+        Binary file opened for writing (seekable).
+    start_s
+        Start time of the log, s since the Unix epoch; no frame may be older.
+    """
+
+    def __init__(self, file: BinaryIO, start_s: float) -> None:
+        super().__init__(file)
+        self.start_timestamp = int(start_s * 1000) / 1000  # BLF keeps milliseconds
+        self._rewrite_header(FILE_HEADER_SIZE)
+
+    def _rewrite_header(self, declared_size: int) -> None:
+        position = self.file.tell()
+        self.file.seek(0)
+        self._write_header(declared_size)
+        self.file.seek(position)
+
+    def checkpoint(self) -> None:
+        """Write the buffered frames as a container and update the header (file still open)."""
+        self._flush()
+        self._rewrite_header(FILE_HEADER_SIZE)
+
+
+class Recorder:
+    """Write a session's frames to its raw log.
+
+    Parameters
+    ----------
+    path
+        The log; its suffix selects the format. Must not exist.
+    start_s
+        Start time of the session, s (bus time); no recorded frame is older. BLF stores it as the
+        file's start time, ASC writes its times relative to it.
+    flush_period_s
+        Longest wall time a written frame may stay in memory, s.
+    channel
+        Channel name written into candump logs (the bus channel when it is a plain name).
+
+    Attributes
+    ----------
+    path : Path
+        The log.
+    frames : int
+        Frames written.
+    first_timestamp : float or None
+        Timestamp of the first frame written, s; None before it.
+
+    Raises
+    ------
+    RecordingError
+        If the suffix is not supported, the file exists or cannot be created.
+    """
+
+    def __init__(
+        self, path: Path, start_s: float, flush_period_s: float, channel: str = "can0"
+    ) -> None:
+        suffix = path.suffix.lower()
+        if suffix not in SUFFIXES:
+            raise RecordingError(
+                f"log {path}: unsupported format '{path.suffix}'; use one of {', '.join(SUFFIXES)}"
+            )
+        mode, encoding = ("xb", None) if suffix == ".blf" else ("x", "ascii")
+        try:
+            file = path.open(mode, encoding=encoding)
+        except FileExistsError as error:
+            raise RecordingError(f"log {path} exists already; it is never overwritten") from error
+        except OSError as error:
+            raise RecordingError(f"cannot create log {path}: {error.strerror or error}") from error
+        self.path = path
+        self.frames = 0
+        self.first_timestamp: float | None = None
+        if suffix == ".blf":
+            self._writer: FileIOMessageWriter = CrashSafeBLFWriter(file, start_s)
+        elif suffix == ".asc":
+            self._writer = can.ASCWriter(file)
+            self._writer.log_event("Start of measurement", start_s)  # times relative to start
+        else:
+            name = channel if _CHANNEL_TOKEN.match(channel) else "can0"
+            self._writer = can.CanutilsLogWriter(file, channel=name)
+        self._write = self._writer.on_message_received
+        self._flush_period_s = flush_period_s
+        self._next_flush = time.monotonic() + flush_period_s
+        self.flush()
+
+    def write(self, frame: can.Message) -> None:
+        """Write one frame (its ``channel`` is cleared: the log holds one bus)."""
+        frame.channel = None
+        self._write(frame)
+        if self.first_timestamp is None:
+            self.first_timestamp = frame.timestamp
+        self.frames += 1
+
+    def flush_if_due(self) -> bool:
+        """Flush when ``flush_period_s`` has passed since the last flush; True if it did."""
+        if time.monotonic() < self._next_flush:
+            return False
+        self.flush()
+        return True
+
+    def flush(self) -> None:
+        """Hand every written frame to the kernel and to the disk (``fsync``)."""
+        writer = self._writer
+        if isinstance(writer, CrashSafeBLFWriter):
+            writer.checkpoint()
+        writer.file.flush()
+        os.fsync(writer.file.fileno())
+        self._next_flush = time.monotonic() + self._flush_period_s
+
+    def close(self) -> None:
+        """Complete the file (BLF header with the true size, ASC end line) and close it."""
+        if not self._writer.file.closed:
+            self._writer.stop()

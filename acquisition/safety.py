@@ -1,0 +1,85 @@
+"""The safety envelope of a running test: when to abort.
+
+* Speed window: the idle set-point is the mean engine speed over the settle phase (when the plan
+  has no settle phase, the first speed sample of the test). From the end of the settle phase on,
+  the test aborts (``speed_window``) when the speed leaves set-point +- ``speed_window_rpm``. The
+  speed checked is the ECU's filtered speed after a median of three consecutive samples, so one
+  corrupted frame cannot abort a test; a real excursion is seen one sample (15 ms at 1000 rpm)
+  later.
+* Vehicle timeout: the test aborts (``vehicle_timeout``) when no speed frame has arrived for
+  ``vehicle_timeout_s`` of bus time. The daemon checks this only when it has taken every frame
+  waiting on the bus, so its own pauses do not count as the vehicle's.
+
+The amplitude cap is enforced when the configuration is loaded
+(:class:`acquisition.config.AcquisitionConfig`); the other aborts (``foreign_tx``, ``signal``,
+``error``) are decided by the daemon. Reasons are the keys of
+:data:`acquisition.stream.ABORT_REASONS`. What an abort does (zero request, end event) is the job
+of :class:`acquisition.sequence.RequestSender` and the daemon.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from acquisition.config import SafetyConfig
+
+
+class SafetyMonitor:
+    """Watch the engine speed of a test for the speed window and the vehicle timeout.
+
+    Parameters
+    ----------
+    config
+        ``[safety]`` of the configuration.
+    t_start
+        Bus time at which the test started, s.
+    settle_s
+        Duration of the settle phase, s.
+
+    Attributes
+    ----------
+    setpoint_rpm : float or None
+        The idle set-point once known, rpm.
+    """
+
+    def __init__(self, config: SafetyConfig, t_start: float, settle_s: float) -> None:
+        self.config = config
+        self.setpoint_rpm: float | None = None
+        self._settle_end = t_start + settle_s
+        self._settle_sum = 0.0
+        self._settle_count = 0
+        self._last_speed_t = t_start
+        self._recent: list[float] = []  # the last two samples, for the median of three
+
+    def on_speed(self, times: np.ndarray, rpm: np.ndarray) -> str | None:
+        """Take new speed samples (bus time, s; rpm); ``speed_window`` to abort, else None."""
+        if len(times) == 0:
+            return None
+        self._last_speed_t = max(self._last_speed_t, float(times[-1]))
+        in_settle = times < self._settle_end
+        if self.setpoint_rpm is None:
+            self._settle_sum += float(np.sum(rpm[in_settle]))
+            self._settle_count += int(np.count_nonzero(in_settle))
+            if not np.all(in_settle):
+                if self._settle_count:
+                    self.setpoint_rpm = self._settle_sum / self._settle_count
+                else:
+                    self.setpoint_rpm = float(rpm[~in_settle][0])
+        checked = rpm[~in_settle]
+        if self.setpoint_rpm is None or len(checked) == 0:
+            return None
+        window = np.concatenate([self._recent, checked])
+        self._recent = window[-2:].tolist()
+        if len(window) < 3:
+            return None
+        filtered = np.median(np.lib.stride_tricks.sliding_window_view(window, 3), axis=1)
+        if np.any(np.abs(filtered - self.setpoint_rpm) > self.config.speed_window_rpm):
+            return "speed_window"
+        return None
+
+    def check_timeout(self, now: float) -> str | None:
+        """Return ``vehicle_timeout`` when no speed frame came for too long before ``now`` (bus
+        time, s), else None."""
+        if now - self._last_speed_t > self.config.vehicle_timeout_s:
+            return "vehicle_timeout"
+        return None

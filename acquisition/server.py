@@ -1,0 +1,139 @@
+"""The daemon's side of the event stream (:mod:`acquisition.stream`): numbering, PUB and replay.
+
+Every event of a session gets the next ``seq`` (0, 1, 2, ... without gaps) and the session's
+name, is published on the PUB socket (``[pipeline] blocks``) as ``[kind, JSON]`` and kept, as the
+very bytes published, until the daemon exits. A REP socket (``[pipeline] replay``) served by its
+own thread answers ``{"from_seq": N}`` with the JSON list of the kept events from N on (an empty
+list when N is past the last). A request that is not such an object gets ``{"error": "..."}``.
+
+Endpoints are ZeroMQ addresses: ``ipc://PATH`` (the default; the directory of PATH is created),
+or ``tcp://HOST:PORT`` as configured.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+from acquisition.config import PipelineConfig
+from acquisition.stream import KINDS, encode_event
+from dtid.errors import ConfigError
+
+logger = logging.getLogger(__name__)
+
+POLL_MS = 100
+"""How often the replay thread looks whether it should stop, ms."""
+SEND_HWM = 100_000
+"""Events the PUB socket queues per subscriber before it drops (the replay still has them)."""
+
+
+def bind(socket: zmq.Socket, endpoint: str, what: str) -> None:
+    """Bind a socket, creating the directory of an ipc endpoint.
+
+    Raises
+    ------
+    ConfigError
+        If the endpoint is malformed, in use, or its directory cannot be created.
+    """
+    try:
+        if endpoint.startswith("ipc://"):
+            Path(endpoint[len("ipc://") :]).parent.mkdir(parents=True, exist_ok=True)
+        socket.bind(endpoint)
+    except (OSError, zmq.ZMQError) as error:
+        raise ConfigError(f"[pipeline] {what} = {endpoint!r}: cannot bind: {error}") from error
+
+
+class EventServer:
+    """Number, publish and keep the events of one session; serve the replay.
+
+    Parameters
+    ----------
+    pipeline
+        ``[pipeline]`` of the configuration (``blocks`` and ``replay`` endpoints).
+    session
+        Name of the session, carried by every event.
+    context
+        ZeroMQ context; the process-wide one if omitted.
+
+    Raises
+    ------
+    ConfigError
+        If an endpoint cannot be bound.
+    """
+
+    def __init__(
+        self, pipeline: PipelineConfig, session: str, context: zmq.Context | None = None
+    ) -> None:
+        self.session = session
+        self._context = context or zmq.Context.instance()
+        self._bodies: list[bytes] = []
+        self._publisher = self._context.socket(zmq.PUB)
+        self._publisher.setsockopt(zmq.SNDHWM, SEND_HWM)
+        self._publisher.setsockopt(zmq.LINGER, 1000)
+        replay = self._context.socket(zmq.REP)
+        replay.setsockopt(zmq.LINGER, 0)
+        try:
+            bind(self._publisher, pipeline.blocks, "blocks")
+            bind(replay, pipeline.replay, "replay")
+        except ConfigError:
+            self._publisher.close(0)
+            replay.close(0)
+            raise
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._serve, args=(replay,), name="dtid-replay", daemon=True
+        )
+        self._thread.start()
+
+    @property
+    def count(self) -> int:
+        """Events published so far."""
+        return len(self._bodies)
+
+    def publish(self, kind: str, fields: Mapping[str, Any]) -> dict[str, Any]:
+        """Publish an event of ``kind`` with ``fields``; return it with ``seq`` and ``session``."""
+        if kind not in KINDS:
+            raise ValueError(f"unknown event kind {kind!r}")
+        event = {"kind": kind, "session": self.session, "seq": len(self._bodies), **fields}
+        topic, body = encode_event(event)
+        self._bodies.append(body)
+        self._publisher.send_multipart([topic, body], copy=False)
+        return event
+
+    def replay(self, from_seq: int) -> bytes:
+        """The JSON list of the kept events from ``from_seq`` on."""
+        return b"[" + b",".join(self._bodies[max(0, from_seq) :]) + b"]"
+
+    def close(self) -> None:
+        """Stop the replay and close both sockets (queued events still go out for 1 s)."""
+        self._stop.set()
+        self._thread.join()
+        self._publisher.close()
+
+    def _serve(self, replay: zmq.Socket) -> None:
+        try:
+            while not self._stop.is_set():
+                if not replay.poll(POLL_MS):
+                    continue
+                request = replay.recv()
+                replay.send(self._answer(request))
+        finally:
+            replay.close(0)
+
+    def _answer(self, request: bytes) -> bytes:
+        try:
+            query = json.loads(request)
+            from_seq = query["from_seq"]
+            if isinstance(from_seq, bool) or not isinstance(from_seq, int):
+                raise TypeError("from_seq must be an integer")
+        except (ValueError, KeyError, TypeError) as error:
+            logger.warning("bad replay request %r: %s", request[:80], error)
+            message = f'expected {{"from_seq": N}}: {error}'
+            return json.dumps({"error": message}).encode()
+        return self.replay(from_seq)

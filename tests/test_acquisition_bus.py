@@ -1,0 +1,157 @@
+"""Opening the bus (guard, errors, receive buffer), the bus clock, the event server, the CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import zmq
+
+from acquisition import netns
+from acquisition.bus import SETUP_HINT, _size_receive_buffer, open_bus
+from acquisition.clock import BusClock
+from acquisition.config import BusConfig, PipelineConfig
+from acquisition.server import EventServer
+from dtid.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_multicast_outside_a_loopback_namespace_is_refused(monkeypatch) -> None:
+    monkeypatch.setattr(netns, "network_interfaces", lambda: ["lo", "eth0"])
+    with pytest.raises(ConfigError, match="eth0"):
+        open_bus(BusConfig(interface="udp_multicast", channel="239.74.163.2"))
+
+
+@pytest.mark.parametrize("channel", ["ff15::1", "10.0.0.1", "not-an-address"])
+def test_multicast_needs_an_ipv4_group(monkeypatch, channel: str) -> None:
+    monkeypatch.setattr(netns, "network_interfaces", lambda: ["lo"])
+    with pytest.raises(ConfigError, match="IPv4 multicast group"):
+        open_bus(BusConfig(interface="udp_multicast", channel=channel))
+
+
+def test_unknown_interface_is_a_config_error() -> None:
+    with pytest.raises(ConfigError, match="not available"):
+        open_bus(BusConfig(interface="no-such-interface", channel="x"))
+
+
+def test_absent_socketcan_channel_names_the_setup_script() -> None:
+    with pytest.raises(ConfigError, match=SETUP_HINT.replace(".", r"\.")):
+        open_bus(BusConfig(interface="socketcan", channel=f"dtid{uuid.uuid4().hex[:8]}"))
+
+
+def test_virtual_bus_opens() -> None:
+    bus = open_bus(BusConfig(interface="virtual", channel=f"dtid-{uuid.uuid4().hex}"))
+    bus.shutdown()
+
+
+def test_receive_buffer_is_sized_on_the_private_socket() -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        fake = SimpleNamespace(_multicast=SimpleNamespace(_socket=sock))
+        size = 1 << 20
+        granted = _size_receive_buffer(fake, size)
+        assert granted == sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+        if os.geteuid() == 0:  # SO_RCVBUFFORCE passes the kernel's cap
+            assert granted >= size
+
+
+def test_bus_without_a_reachable_socket_still_opens() -> None:
+    assert _size_receive_buffer(SimpleNamespace(), 1 << 20) is None
+
+
+def test_clock_factor_one_keeps_timestamps_bit_for_bit() -> None:
+    clock = BusClock(1.0, start_wall_s=1_700_000_000.123)
+    wall = 1_700_000_001.987654321
+    assert clock.to_bus(wall) == wall and clock.to_wall(wall) == wall
+
+
+def test_clock_stretches_from_the_start() -> None:
+    clock = BusClock(20.0, start_wall_s=1_700_000_000.0)
+    assert clock.to_bus(1_700_000_000.0) == 1_700_000_000.0
+    assert clock.to_bus(1_700_000_000.5) == pytest.approx(1_700_000_010.0, abs=1e-6)
+    assert clock.to_wall(clock.to_bus(1_700_000_003.25)) == pytest.approx(1_700_000_003.25)
+
+
+def test_clock_refuses_a_factor_that_is_not_positive() -> None:
+    with pytest.raises(ValueError, match="> 0"):
+        BusClock(0.0)
+
+
+@pytest.fixture
+def pipeline() -> PipelineConfig:
+    ipc = Path("/tmp") / f"dtid-test-{uuid.uuid4().hex[:12]}" / "nested"
+    return PipelineConfig(blocks=f"ipc://{ipc}/blocks", replay=f"ipc://{ipc}/replay")
+
+
+def replay(endpoint: str, request: bytes) -> object:
+    context = zmq.Context.instance()
+    socket_ = context.socket(zmq.REQ)
+    socket_.connect(endpoint)
+    try:
+        socket_.send(request)
+        assert socket_.poll(5000)
+        return json.loads(socket_.recv())
+    finally:
+        socket_.close(0)
+
+
+def test_events_are_numbered_kept_and_replayed(pipeline: PipelineConfig) -> None:
+    server = EventServer(pipeline, "session-1")
+    try:
+        sent = [
+            server.publish("session", {"log_path": "x.blf"}),
+            server.publish("phase", {"phase": "settle"}),
+            server.publish("end", {"status": "completed"}),
+        ]
+        assert [e["seq"] for e in sent] == [0, 1, 2]
+        assert all(e["session"] == "session-1" for e in sent)
+        assert replay(pipeline.replay, b'{"from_seq": 0}') == sent
+        assert replay(pipeline.replay, b'{"from_seq": 2}') == sent[2:]
+        assert replay(pipeline.replay, b'{"from_seq": 7}') == []
+        assert "error" in replay(pipeline.replay, b'{"from": 1}')
+        assert "error" in replay(pipeline.replay, b"not json")
+    finally:
+        server.close()
+
+
+def test_endpoint_in_use_is_a_config_error(pipeline: PipelineConfig) -> None:
+    context = zmq.Context.instance()
+    blocker = context.socket(zmq.PUB)
+    blocker.bind("tcp://127.0.0.1:*")
+    endpoint = blocker.getsockopt_string(zmq.LAST_ENDPOINT)
+    try:
+        with pytest.raises(ConfigError, match="cannot bind"):
+            EventServer(PipelineConfig(blocks=endpoint, replay=pipeline.replay), "s")
+    finally:
+        blocker.close(0)
+
+
+def test_cli_bus_error_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    channel = f"dtid{uuid.uuid4().hex[:8]}"
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "dtid.cli",
+            "acquire",
+            "--channel",
+            channel,
+            "--output",
+            str(tmp_path),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and SETUP_HINT in lines[0]
+    assert not any(tmp_path.iterdir())  # no session is made for a bus that does not open

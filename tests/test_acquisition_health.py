@@ -1,0 +1,119 @@
+"""Counter bookkeeping (lost, duplicated, out of order) and the echo filter of the daemon."""
+
+from __future__ import annotations
+
+import can
+import numpy as np
+import pytest
+
+from acquisition.health import CounterTracker, EchoFilter, Health, counter_moduli
+from dbc.interface import RoleSeries
+from dbc.loader import load_interface
+
+INTERFACE = load_interface()
+
+
+def tracked(counters: list[int], modulo: int = 256, blocks: int = 1) -> CounterTracker:
+    """A tracker fed ``counters`` in ``blocks`` consecutive chunks."""
+    tracker = CounterTracker(modulo)
+    for chunk in np.array_split(np.array(counters), blocks):
+        tracker.update(chunk)
+    return tracker
+
+
+def counts(tracker: CounterTracker) -> tuple[int, int, int]:
+    return tracker.lost, tracker.duplicated, tracker.out_of_order
+
+
+@pytest.mark.parametrize("blocks", [1, 3, 7])
+def test_contiguous_counters_across_the_wrap_are_clean(blocks: int) -> None:
+    counters = [i % 256 for i in range(200, 700)]
+    assert counts(tracked(counters, blocks=blocks)) == (0, 0, 0)
+
+
+@pytest.mark.parametrize("blocks", [1, 4])
+def test_gaps_duplicates_and_reorders(blocks: int) -> None:
+    counters = [*range(0, 10), *range(12, 20), 19, 20, 22, 21, *range(23, 30)]
+    # 10 and 11 lost; 19 repeated; 21 arrives after 22
+    assert counts(tracked(counters, blocks=blocks)) == (2, 1, 1)
+
+
+def test_late_frame_fills_its_hole_across_the_wrap() -> None:
+    counters = [*range(250, 256), 1, 0, *range(2, 10)]  # 0 arrives after 1
+    assert counts(tracked(counters)) == (0, 0, 1)
+
+
+def test_late_copy_of_a_frame_already_seen_is_a_duplicate() -> None:
+    counters = [*range(0, 10), 5, *range(10, 15)]
+    assert counts(tracked(counters)) == (0, 1, 0)
+
+
+def test_very_late_frame_within_half_the_range_is_out_of_order() -> None:
+    counters = [0, 1, 2, 3, *range(5, 120), 4]
+    assert counts(tracked(counters)) == (0, 0, 1)
+
+
+def test_16_bit_counter_wraps_at_65536() -> None:
+    counters = [*range(65530, 65536), 0, 1, 3]
+    assert counts(tracked(counters, modulo=65536)) == (1, 0, 0)
+
+
+def test_counter_widths_come_from_the_dbc() -> None:
+    moduli = counter_moduli(INTERFACE, ("speed", "mean_torque", "torque_request", "test_torque"))
+    assert moduli == {"speed": 65536, "mean_torque": 256, "torque_request": 256, "test_torque": 16}
+
+
+def _series(role: str, counters: list[int], n_bad: int = 0) -> RoleSeries:
+    n = len(counters)
+    extra = {"counter": np.array(counters, dtype=np.int64)}
+    return RoleSeries(role, np.arange(n, dtype=float), np.zeros(n), extra, n_bad)
+
+
+def test_health_sums_roles_and_bad_frames() -> None:
+    health = Health(INTERFACE)
+    health.update(
+        {"speed": _series("speed", [0, 1, 3]), "mean_torque": _series("mean_torque", [7])}
+    )
+    health.update(
+        {"speed": _series("speed", [3, 4], n_bad=2), "mean_torque": _series("mean_torque", [9])}
+    )
+    counts = health.counts
+    assert (counts.lost, counts.duplicated, counts.out_of_order, counts.bad_frames) == (2, 1, 0, 2)
+
+
+def _request(counter: int, value: float = 0.0) -> can.Message:
+    return INTERFACE.encode("test_torque", value, 0.0, counter=counter, enable=0)
+
+
+def test_echo_is_consumed_once_and_a_second_copy_is_foreign() -> None:
+    echo = EchoFilter([INTERFACE.frame_key("test_torque")])
+    frame = _request(3)
+    echo.expect(frame)
+    copy = can.Message(
+        arbitration_id=frame.arbitration_id, is_extended_id=False, data=bytes(frame.data)
+    )
+    assert echo.is_tool_frame(copy)
+    assert echo.is_echo(copy)
+    assert not echo.is_echo(copy)
+    assert echo.echoes == 1
+
+
+def test_frame_never_sent_is_foreign_and_other_ids_are_not_tool_frames() -> None:
+    echo = EchoFilter([INTERFACE.frame_key("test_torque")])
+    echo.expect(_request(3))
+    assert not echo.is_echo(_request(4))
+    assert not echo.is_tool_frame(INTERFACE.encode("speed", 1000.0, 0.0, counter=1))
+
+
+def test_identical_frames_sent_twice_have_two_echoes() -> None:
+    echo = EchoFilter([INTERFACE.frame_key("test_torque")])
+    for _ in range(2):
+        echo.expect(_request(5))
+    assert echo.is_echo(_request(5)) and echo.is_echo(_request(5))
+    assert not echo.is_echo(_request(5))
+
+
+def test_echo_expected_too_long_ago_is_foreign() -> None:
+    echo = EchoFilter([INTERFACE.frame_key("test_torque")], window_s=-1.0)
+    echo.expect(_request(6))
+    assert not echo.is_echo(_request(6))

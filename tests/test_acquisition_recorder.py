@@ -1,0 +1,121 @@
+"""The raw log of a session: formats, never overwriting, and what a ``kill -9`` leaves."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import can
+import pytest
+
+from acquisition.logfile import read_log
+from acquisition.recorder import Recorder, new_session_directory
+from dtid.errors import RecordingError
+
+ROOT = Path(__file__).resolve().parents[1]
+FORMATS = ("blf", "asc", "log")
+
+
+def frames(start: float, n: int) -> list[can.Message]:
+    """``n`` frames 1 ms apart from ``start``: received ones and every fifth one sent."""
+    return [
+        can.Message(
+            timestamp=start + 0.001 * (i + 1),
+            arbitration_id=0x6A0 if i % 5 == 0 else 0x1A0 + i % 3,
+            is_extended_id=False,
+            is_rx=i % 5 != 0,
+            data=bytes([i % 256, i // 256 % 256, 1, 2, 3, 4, 5, 6]),
+            channel="vcan0",
+        )
+        for i in range(n)
+    ]
+
+
+def key(frame: can.Message) -> tuple[int, bool, bytes, bool]:
+    return frame.arbitration_id, frame.is_extended_id, bytes(frame.data), frame.is_rx
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_log_reads_back_every_frame(tmp_path: Path, fmt: str) -> None:
+    start = time.time()
+    written = frames(start, 300)
+    recorder = Recorder(tmp_path / f"test.{fmt}", start, 0.5, "vcan0")
+    for frame in written:
+        recorder.write(frame)
+    recorder.close()
+    assert recorder.frames == 300 and recorder.first_timestamp == written[0].timestamp
+    back = read_log(recorder.path)
+    assert [key(f) for f in back] == [key(f) for f in written]
+    origin = start if fmt == "asc" else 0.0  # ASC times are relative to the session start
+    times = [f.timestamp + origin for f in back]
+    assert times == pytest.approx([f.timestamp for f in written], abs=2e-6)
+
+
+def test_existing_log_is_never_overwritten(tmp_path: Path) -> None:
+    path = tmp_path / "test.blf"
+    path.write_bytes(b"precious")
+    with pytest.raises(RecordingError, match="exists"):
+        Recorder(path, time.time(), 0.5)
+    assert path.read_bytes() == b"precious"
+
+
+def test_unsupported_suffix_is_refused(tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match="unsupported"):
+        Recorder(tmp_path / "test.csv", time.time(), 0.5)
+    assert not (tmp_path / "test.csv").exists()
+
+
+def test_each_session_gets_its_own_directory(tmp_path: Path) -> None:
+    now = 1_800_000_000.0
+    first = new_session_directory(tmp_path / "runs", now)
+    second = new_session_directory(tmp_path / "runs", now)
+    assert first.name == "20270115T080000Z"
+    assert second.name == "20270115T080000Z-2"
+    assert first.is_dir() and second.is_dir()
+
+
+KILLED_WRITER = """
+import os, signal, sys
+sys.path.insert(0, {root!r})
+sys.path.insert(0, {tests!r})
+from test_acquisition_recorder import frames
+from acquisition.recorder import Recorder
+start = {start!r}
+recorder = Recorder(__import__("pathlib").Path({path!r}), start, 60.0, "vcan0")
+written = frames(start, {flushed} + {unflushed})
+for frame in written[:{flushed}]:
+    recorder.write(frame)
+recorder.flush()
+for frame in written[{flushed}:]:
+    recorder.write(frame)
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+@pytest.mark.parametrize("unflushed", [50, 6000])
+def test_log_survives_sigkill(tmp_path: Path, fmt: str, unflushed: int) -> None:
+    """Frames up to the last flush survive a kill -9; 6000 more frames make the BLF writer
+    write containers on its own after the flush (a file cut in the middle of its data)."""
+    start = time.time()
+    path = tmp_path / f"killed.{fmt}"
+    flushed = 400
+    script = KILLED_WRITER.format(
+        root=str(ROOT),
+        tests=str(ROOT / "tests"),
+        start=start,
+        path=str(path),
+        flushed=flushed,
+        unflushed=unflushed,
+    )
+    result = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True)
+    assert result.returncode == -signal.SIGKILL, result.stderr.decode()
+    back = read_log(path)
+    written = frames(start, flushed + unflushed)
+    assert flushed <= len(back) <= len(written)
+    assert [key(f) for f in back] == [key(f) for f in written[: len(back)]]
+    if fmt != "asc":  # absolute times, also in a BLF file its writer never closed
+        assert back[0].timestamp == pytest.approx(written[0].timestamp, abs=2e-6)

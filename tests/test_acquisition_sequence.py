@@ -1,0 +1,104 @@
+"""The tool's frames of a test: the same as a simulated test's; phases; the DBC's tool states."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from acquisition.sequence import ToolFrames, phases
+from dbc import tool_state
+from dbc.checksum import verify_checksum
+from dbc.loader import load_interface
+from simulator import simulate
+from simulator.chirp import TestPlan
+from simulator.vehicle_frames import simulation_frames
+
+INTERFACE = load_interface()
+PLAN = TestPlan(amplitudes_nm=(5.0, 10.0, 2.0), duration_s=1.0, settle_s=0.3, pause_s=0.2)
+
+
+def tool_frames_of_a_simulated_test(plan: TestPlan) -> list[tuple[int, bytes, float]]:
+    """The tool's frames :func:`simulation_frames` writes for a test (no ECU frames)."""
+    request_t, request_nm = simulate.test_requests(plan)
+    empty = np.zeros(0)
+    result = SimpleNamespace(
+        plan=plan,
+        request_t=request_t,
+        test_torque_nm=request_nm,
+        speed_t=empty,
+        speed_rpm=empty,
+        torque_request_nm=empty,
+        torque_t=empty,
+        mean_torque_nm=empty,
+        cylinder=empty,
+    )
+    frames = simulation_frames(result, INTERFACE)
+    return [(f.arbitration_id, bytes(f.data), f.timestamp) for f in frames]
+
+
+def test_daemon_sends_the_frames_of_a_simulated_test() -> None:
+    tool = ToolFrames(INTERFACE, PLAN)
+    requests = [tool.request(k, k, t) for k, t in enumerate(tool.request_times)]
+    beats = [
+        tool.heartbeat(int(state), j, t)
+        for j, (t, state) in enumerate(
+            zip(tool.heartbeat_times, tool.heartbeat_states, strict=True)
+        )
+    ]
+    frames = sorted(requests + beats, key=lambda frame: frame.timestamp)
+    ours = [(f.arbitration_id, bytes(f.data), f.timestamp) for f in frames]
+    assert ours == tool_frames_of_a_simulated_test(PLAN)
+    assert not any(f.is_rx for f in frames)
+    assert all(verify_checksum(f.data) for f in requests)
+    counters = INTERFACE.decode(requests)["test_torque"].extra["counter"]
+    assert counters.tolist() == [k % 16 for k in range(len(requests))]
+
+
+def test_zero_request_disables_and_keeps_the_counter() -> None:
+    tool = ToolFrames(INTERFACE, PLAN)
+    frame = tool.zero_request(37, 1.0)
+    decoded = INTERFACE.decode([frame])["test_torque"]
+    assert decoded.values.tolist() == [0.0]
+    assert decoded.extra["enable"].tolist() == [0]
+    assert decoded.extra["counter"].tolist() == [37 % 16]
+    assert verify_checksum(frame.data)
+
+
+def test_phases_follow_the_plan() -> None:
+    names = [(p.name, p.chirp, p.amplitude_nm) for p in phases(PLAN)]
+    assert names == [
+        ("settle", None, None),
+        ("chirp", 0, 5.0),
+        ("pause", None, None),
+        ("chirp", 1, 10.0),
+        ("pause", None, None),
+        ("chirp", 2, 2.0),
+        ("pause", None, None),
+        ("done", None, None),
+    ]
+    starts = [p.start_s for p in phases(PLAN)]
+    assert starts == sorted(starts) and starts[-1] == PLAN.end_s
+
+
+def test_phases_without_settle_and_pauses() -> None:
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=1.0, settle_s=0.0, pause_s=0.0)
+    assert [(p.name, p.start_s) for p in phases(plan)] == [
+        ("chirp", 0.0),
+        ("chirp", 1.0),
+        ("done", 2.0),
+    ]
+
+
+def test_tool_states_are_the_dbc_value_table() -> None:
+    signal = INTERFACE.database.get_message_by_name("ToolHeartbeat").get_signal_by_name("ToolState")
+    table = {int(value): str(name) for value, name in signal.choices.items()}
+    assert table == {
+        tool_state.TOOL_IDLE: "idle",
+        tool_state.TOOL_SETTLING: "settling",
+        tool_state.TOOL_CHIRP: "chirp",
+        tool_state.TOOL_ABORT: "abort",
+        tool_state.TOOL_DONE: "done",
+    }
+    message = INTERFACE.database.get_message_by_name("ToolHeartbeat")
+    assert message.cycle_time == round(tool_state.HEARTBEAT_PERIOD_S * 1000)
