@@ -11,10 +11,20 @@ import logging
 import sys
 from collections.abc import Sequence
 
-from dtid.commands import acquire, demo, frf, identify, inspect, profile, simulate, worker
+from dtid.commands import (
+    acquire,
+    demo,
+    frf,
+    identify,
+    inspect,
+    profile,
+    simulate,
+    vehicle,
+    worker,
+)
 from dtid.errors import DtidError
 
-COMMANDS = (demo, simulate, inspect, frf, identify, profile, acquire, worker)
+COMMANDS = (demo, simulate, inspect, frf, identify, profile, acquire, worker, vehicle)
 EXIT_USER_ERROR = 2
 
 
