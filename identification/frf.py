@@ -131,7 +131,7 @@ def _hold(series: Series, grid: np.ndarray) -> np.ndarray:
 def _event_grid(times: np.ndarray, interval: float) -> np.ndarray:
     """The speed's event times with any missing events (gaps of 1.5 intervals or more) filled."""
     gaps = np.diff(times)
-    missing = np.rint(gaps / interval).astype(np.int64) - 1
+    missing = np.maximum(np.rint(gaps / interval).astype(np.int64) - 1, 0)
     if not np.any(missing > 0):
         return times
     pieces = [times[:1]]

@@ -93,10 +93,10 @@ class VehicleReport:
     requests_accepted, requests_dropped
         Test-torque request frames the ECU accepted, and dropped by reason.
     last_request_s
-        Bus time of the last accepted request before the applied test torque last went to
-        zero, s (None: it never went from non-zero to zero).
+        Bus time of the last accepted request that asked for a non-zero test torque, s (None:
+        none).
     zero_after_s
-        Bus time at which it went to zero, s.
+        Bus time at which the applied test torque went to zero after it, s (None: it did not).
     zero_cause
         ``request`` (the tool asked for zero or disabled the test) or ``timeout``.
     stalled_at_s
@@ -223,10 +223,10 @@ class VirtualVehicle:
         """Update the applied test torque and note when it goes to zero, and why."""
         applied = self.receiver.test_torque(now)
         if applied != 0.0:
+            self.report.last_request_s = self.receiver.last_valid_s
             self.report.zero_after_s = None
             self.report.zero_cause = None
         elif self._applied != 0.0:
-            self.report.last_request_s = self.receiver.last_valid_s
             self.report.zero_after_s = now
             self.report.zero_cause = "timeout" if self.receiver.timed_out(now) else "request"
         self._applied = applied
