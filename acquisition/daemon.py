@@ -26,8 +26,10 @@ so a restarting worker can still catch up; a further signal cuts the linger shor
 from __future__ import annotations
 
 import contextlib
+import gc
 import logging
 import signal
+import sys
 import threading
 import time
 from collections import deque
@@ -62,6 +64,9 @@ DEFAULT_WAIT_S = 10.0
 """Default wall time to wait for the vehicle's first speed frame, s."""
 _FINISH_GRACE_S = 1.0
 """Wall time allowed beyond the zero requests for the sender to finish, s."""
+SWITCH_INTERVAL_S = 0.0005
+"""Python's thread switch interval while the test runs, s (default 5 ms): the longest time the
+sender thread may wait for the interpreter while the receive loop decodes a block."""
 
 
 @dataclass(frozen=True)
@@ -165,7 +170,7 @@ class Daemon:
                 f"bus: {config.bus.interface} {config.bus.channel}; events: "
                 f"{config.pipeline.blocks} (replay {config.pipeline.replay})"
             )
-            with self._signal_handlers():
+            with self._signal_handlers(), _soft_real_time():
                 try:
                     self._loop()
                 except KeyboardInterrupt:
@@ -350,3 +355,18 @@ class Daemon:
         until = time.monotonic() + self.linger_s
         while time.monotonic() < until and self._signals == signals:
             time.sleep(min(0.05, max(0.0, until - time.monotonic())))
+
+
+@contextlib.contextmanager
+def _soft_real_time() -> Iterator[None]:
+    """The thread switch interval at :data:`SWITCH_INTERVAL_S`, and every object alive at the
+    start frozen out of the garbage collector, so that no collection walks them in mid-test."""
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+        sys.setswitchinterval(interval)

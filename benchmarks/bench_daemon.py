@@ -1,0 +1,301 @@
+"""Acquisition daemon speed: frames recorded and decoded per second, and bus-to-worker latency.
+
+Run from the repository root::
+
+    PYTHONPATH=. python benchmarks/bench_daemon.py [--quick]
+
+(a) Throughput, on one core (the process pinned to CPU 0): pre-built frames go through the
+    daemon's real per-frame path, :meth:`acquisition.framepath.FramePath.take` (bus time, echo
+    filter, BLF log) and, per block, :meth:`~acquisition.framepath.FramePath.publish_block`
+    (decode through the DBC, counter health, speed-window check, JSON ``samples`` event on a ZeroMQ
+    PUB socket), with the log flushed (``fsync``) every ``flush_period_s`` as in the daemon. The
+    bus's own ``recv`` is not part of it. Three mixes: the engine ECU's frames of the product DBC
+    (all decoded), unmapped 8-byte frames and unmapped 0-byte frames (recorded only), in blocks
+    of 200 frames (the daemon's batch at about 100,000 frames/s with a 2 ms block period) and,
+    for the ECU mix, of 1 frame (a quiet bus: one event per frame). Compared with the highest
+    frame rate of a 1 Mbit/s classical CAN bus, computed below without bit stuffing.
+(b) Latency: the whole daemon (:class:`acquisition.daemon.Daemon`) on python-can's in-process
+    ``virtual`` bus with a fake engine ECU thread sending speed, torque-request and mean-torque
+    frames, and a ZeroMQ SUB subscriber in a separate process. Latency of a frame = the
+    subscriber's ``time.time()`` when the samples event holding it arrives minus the frame's
+    send time (the virtual bus stamps ``time.time()`` at sending, and with ``time_factor`` 1 the
+    samples carry it unchanged). Median and 99th percentile over every ECU frame of the test, at
+    the ECU rate of an engine at 1000 rpm (167 frames/s) and at a heavy 3000 frames/s.
+
+Prints the figures and writes them to ``benchmarks/results/daemon.json``. A benchmark, not a test:
+nothing is asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+
+import can
+import numpy as np
+
+from acquisition.clock import BusClock
+from acquisition.config import (
+    AcquisitionConfig,
+    BusConfig,
+    OutputConfig,
+    PipelineConfig,
+    SafetyConfig,
+    TestConfig,
+)
+from acquisition.daemon import Daemon
+from acquisition.framepath import FramePath
+from acquisition.health import EchoFilter
+from acquisition.recorder import Recorder
+from acquisition.safety import SafetyMonitor
+from acquisition.server import EventServer
+from dbc.loader import load_interface
+
+REPO = Path(__file__).resolve().parents[1]
+RESULTS = REPO / "benchmarks" / "results" / "daemon.json"
+
+BITRATE = 1_000_000
+"""Bit rate of the fastest classical CAN bus, bit/s."""
+
+
+def frame_bits(data_bytes: int) -> int:
+    """Bits on the bus of a classical standard-ID data frame, without bit stuffing.
+
+    SOF 1 + identifier 11 + RTR 1 + IDE 1 + r0 1 + DLC 4 + data 8n + CRC 15 + CRC delimiter 1 +
+    ACK slot 1 + ACK delimiter 1 + EOF 7 = 44 + 8n, plus the interframe space of 3 bits: 47 + 8n
+    (111 bits for 8 data bytes, 47 for none). Stuff bits (up to one per 4 bits of the stuffed
+    part) only make frames longer, so these are the highest frame rates.
+    """
+    return 47 + 8 * data_bytes
+
+
+def full_bus_rates() -> dict[str, float]:
+    """Frames per second of a saturated 1 Mbit/s bus."""
+    return {
+        "8_byte_frames_per_s": BITRATE / frame_bits(8),
+        "0_byte_frames_per_s": BITRATE / frame_bits(0),
+    }
+
+
+def ecu_frames(n: int, start: float) -> list[can.Message]:
+    """``n`` frames of the engine ECU at 1000 rpm: speed and torque request every 15 ms, the
+    mean torque every other time, counters running, timestamps from ``start``."""
+    interface = load_interface()
+    frames: list[can.Message] = []
+    event = 0
+    while len(frames) < n:
+        t = start + 0.015 * event
+        frames.append(interface.encode("speed", 1000.0, t, counter=event % 65536))
+        frames.append(interface.encode("torque_request", 20.0, t, counter=event % 256))
+        if event % 2 == 0:
+            stroke = event // 2
+            frames.append(
+                interface.encode("mean_torque", 20.0, t, counter=stroke % 256, cylinder=stroke % 4)
+            )
+        event += 1
+    return frames[:n]
+
+
+def unmapped_frames(n: int, start: float, data_bytes: int) -> list[can.Message]:
+    """``n`` frames on an ID the signal map does not use (recorded, not decoded)."""
+    payload = bytes(range(data_bytes))
+    return [
+        can.Message(
+            timestamp=start + 1e-5 * i, arbitration_id=0x321, is_extended_id=False, data=payload
+        )
+        for i in range(n)
+    ]
+
+
+def copies(frames: list[can.Message]) -> list[can.Message]:
+    """Fresh frames (the path sets timestamp and channel on the ones it takes)."""
+    return [
+        can.Message(
+            timestamp=f.timestamp,
+            arbitration_id=f.arbitration_id,
+            is_extended_id=f.is_extended_id,
+            data=f.data,
+            channel="vcan0",
+        )
+        for f in frames
+    ]
+
+
+def throughput(frames: list[can.Message], block: int, repeats: int, workdir: Path) -> float:
+    """Frames per second through the per-frame path, best of ``repeats``."""
+    interface = load_interface()
+    best = 0.0
+    for repeat in range(repeats):
+        clock = BusClock(1.0)
+        directory = workdir / f"throughput-{uuid.uuid4().hex[:8]}"
+        directory.mkdir()
+        recorder = Recorder(directory / "bench.blf", frames[0].timestamp - 1.0, 0.5)
+        pipeline = PipelineConfig(
+            blocks=f"ipc://{directory}/blocks", replay=f"ipc://{directory}/replay"
+        )
+        server = EventServer(pipeline, f"bench-{repeat}")
+        echo = EchoFilter([interface.frame_key("test_torque"), interface.frame_key("heartbeat")])
+        path = FramePath(interface, clock, recorder, server, echo, {})
+        path.safety = SafetyMonitor(SafetyConfig(), frames[0].timestamp, 0.5)
+        fresh = copies(frames)
+        take, publish = path.take, path.publish_block
+        flush = recorder.flush_if_due
+        started = time.perf_counter()
+        for begin in range(0, len(fresh), block):
+            for frame in fresh[begin : begin + block]:
+                take(frame)
+            publish()
+            flush()
+        elapsed = time.perf_counter() - started
+        recorder.close()
+        server.close()
+        best = max(best, len(fresh) / elapsed)
+    return best
+
+
+class FakeEcu(threading.Thread):
+    """Engine ECU frames on a virtual bus at ``rate`` frames/s (speed, request, mean torque)."""
+
+    def __init__(self, channel: str, rate: float) -> None:
+        super().__init__(daemon=True)
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.interface = load_interface()
+        self.period = 2.5 / rate  # 2.5 frames per crank event
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        encode, send = self.interface.encode, self.bus.send
+        start = time.time()
+        event = 0
+        while not self.stop.is_set():
+            time.sleep(max(0.0, start + event * self.period - time.time()))
+            send(encode("speed", 1000.0, 0.0, counter=event % 65536))
+            send(encode("torque_request", 20.0, 0.0, counter=event % 256))
+            if event % 2 == 0:
+                send(encode("mean_torque", 20.0, 0.0, counter=event // 2 % 256, cylinder=0))
+            event += 1
+        self.bus.shutdown()
+
+
+SUBSCRIBER = """
+import json, sys, time, zmq
+context = zmq.Context()
+sub = context.socket(zmq.SUB)
+sub.setsockopt(zmq.SUBSCRIBE, b"samples")
+sub.setsockopt(zmq.SUBSCRIBE, b"end")
+sub.connect(sys.argv[1])
+print("ready", flush=True)
+latencies = []
+while sub.poll(20000):
+    topic, body = sub.recv_multipart()
+    now = time.time()
+    if topic == b"end":
+        break
+    event = json.loads(body)
+    for role in ("speed", "torque_request", "mean_torque"):
+        latencies.extend(now - t for t in event["roles"].get(role, {}).get("t", []))
+json.dump(latencies, open(sys.argv[2], "w"))
+"""
+
+
+def latency(rate: float, duration_s: float, workdir: Path) -> dict[str, float]:
+    """Bus-to-subscriber latency of the ECU frames of one test, s."""
+    directory = workdir / f"latency-{uuid.uuid4().hex[:8]}"
+    config = AcquisitionConfig(
+        bus=BusConfig(interface="virtual", channel=f"bench-{uuid.uuid4().hex}"),
+        test=TestConfig(
+            amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=duration_s, settle_s=0.5
+        ),
+        output=OutputConfig(directory=directory / "runs"),
+        pipeline=PipelineConfig(
+            blocks=f"ipc://{directory}/ipc/blocks", replay=f"ipc://{directory}/ipc/replay"
+        ),
+    )
+    out = directory / "latencies.json"
+    subscriber = subprocess.Popen(
+        [sys.executable, "-c", SUBSCRIBER, config.pipeline.blocks, str(out)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert subscriber.stdout is not None
+    subscriber.stdout.readline()  # connected (it reconnects until the daemon binds)
+    ecu = FakeEcu(config.bus.channel, rate)
+    daemon = Daemon(config, linger_s=0.5, wait_s=10.0)
+    threading.Timer(0.2, ecu.start).start()  # after the daemon's bus is open
+    try:
+        result = daemon.run()
+    finally:
+        ecu.stop.set()
+    subscriber.wait(60)
+    values = np.array(json.loads(out.read_text()))
+    return {
+        "ecu_frames_per_s": rate,
+        "frames": len(values),
+        "status": result.status,
+        "median_ms": float(np.median(values) * 1e3),
+        "p99_ms": float(np.percentile(values, 99) * 1e3),
+        "max_ms": float(values.max() * 1e3),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer frames and a shorter test")
+    args = parser.parse_args()
+    n = 20_000 if args.quick else 100_000
+    repeats = 2 if args.quick else 3
+    duration = 5.0 if args.quick else 20.0
+    rates = full_bus_rates()
+    results: dict[str, Any] = {
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+        "python": platform.python_version(),
+        "python_can": can.__version__,
+        "full_bus": {**rates, "bits_8_byte": frame_bits(8), "bits_0_byte": frame_bits(0)},
+    }
+    with tempfile.TemporaryDirectory(prefix="dtid-bench-", dir="/tmp") as tmp:
+        workdir = Path(tmp)
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+        start = time.time()
+        cases = {
+            "ecu_block_200": (ecu_frames(n, start), 200),
+            "ecu_block_1": (ecu_frames(n // 5, start), 1),
+            "unmapped_8_byte_block_200": (unmapped_frames(n, start, 8), 200),
+            "unmapped_0_byte_block_200": (unmapped_frames(n, start, 0), 200),
+        }
+        throughputs = {}
+        for name, (frames, block) in cases.items():
+            fps = throughput(frames, block, repeats, workdir)
+            reference = rates["0_byte_frames_per_s" if "0_byte" in name else "8_byte_frames_per_s"]
+            throughputs[name] = {"frames_per_s": fps, "x_full_bus": fps / reference}
+            print(f"{name:28s} {fps:10,.0f} frames/s  {fps / reference:5.1f}x full bus")
+        results["throughput_one_core"] = throughputs
+        os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+        latencies = {}
+        for rate in (167.0, 3000.0):
+            figures = latency(rate, duration, workdir)
+            latencies[f"{rate:g}_frames_per_s"] = figures
+            print(
+                f"latency at {rate:6.0f} frames/s: median {figures['median_ms']:.3f} ms, "
+                f"p99 {figures['p99_ms']:.3f} ms, max {figures['max_ms']:.1f} ms "
+                f"({figures['frames']} frames, test {figures['status']})"
+            )
+        results["latency"] = latencies
+    RESULTS.parent.mkdir(exist_ok=True)
+    RESULTS.write_text(json.dumps(results, indent=1) + "\n")
+    print(f"wrote {RESULTS}")
+
+
+if __name__ == "__main__":
+    main()
