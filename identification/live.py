@@ -199,11 +199,11 @@ class LiveSession:
         return chirp is not None and chirp.end_s is not None
 
     def reaches(self, t_s: float) -> bool:
-        """True when every analysis role's samples arrived up to ``t_s`` (from the log start),
-        or the session ended (nothing more will come)."""
+        """True when the samples of every analysis role the session carries arrived up to
+        ``t_s`` (from the log start), or the session ended (nothing more will come)."""
         if self.end is not None:
             return True
-        roles = [r for r in ANALYSIS_ROLES if r in self.interface.present_roles()]
+        roles = [r for r in ANALYSIS_ROLES if r in self.last_t] or ANALYSIS_ROLES[:1]
         return all(self.last_t.get(r, -float("inf")) - self.log_start_s >= t_s for r in roles)
 
     def recording(self) -> Recording:

@@ -452,8 +452,9 @@ class Worker:
         options = self.options
 
         def progress(stage: str, step: int, steps: int, best: float) -> None:
+            # the search's thread only queues: the loop composes the message from the session
             search = {"stage": stage, "step": step, "steps": steps, "objective": best}
-            self._progress(session, "identifying", search=search)
+            self._outbox.put(("", {"session": session, "search": search}))
 
         def run() -> None:
             try:
@@ -540,6 +541,9 @@ class Worker:
                 topic, document = self._outbox.get_nowait()
             except queue.Empty:
                 return
+            if not topic:  # the search's progress, from its thread
+                self._progress(document["session"], "identifying", search=document["search"])
+                continue
             if topic == "progress":
                 logger.info("progress %s", document)
             if self._pub is not None:

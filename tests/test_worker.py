@@ -477,7 +477,7 @@ def test_replay_alone_gives_the_live_result(
     daemon = FakeDaemon(pipeline, session.events)
     daemon.go.set()
     assert daemon.done.wait(10)
-    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json")
+    options = WorkerOptions(settings=BUDGET, profile_points=0)  # files beside the log
     try:
         status, messages, _ = _serve(pipeline, options)
     finally:
@@ -485,6 +485,9 @@ def test_replay_alone_gives_the_live_result(
     assert status == 0 and daemon.requests[0] == 0
     (result,) = [d for t, d in messages if t == "result"]
     assert _without_wall_time(result) == _without_wall_time(offline["identify"])
+    folder = session.log_path.parent
+    assert json.loads((folder / "identification.json").read_text()) == result
+    assert (folder / "identification.png").stat().st_size > 10_000
 
 
 def test_a_new_session_resets_the_worker(

@@ -47,19 +47,29 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run)
 
 
-def _terminal(topic: str, document: dict[str, Any]) -> None:
-    """One line per stage change on stderr; the result's parameters on stdout."""
-    if topic == "frf":
-        print(f"FRF: {document['amplitude_nm']:g} N*m", file=sys.stderr)
-    elif topic == "progress" and "search" not in document:
-        detail = document.get("message") or ""
-        files = ", ".join(document.get("files", []))
-        data = document.get("data_s")
-        data_text = f" {data:.1f} s of data" if data is not None else ""
-        print(
-            f"{document['session']}: {document['stage']}{data_text} {detail}{files}",
-            file=sys.stderr,
-        )
+class _Terminal:
+    """One line on stderr per stage or phase change and per FRF; each result on stdout."""
+
+    def __init__(self) -> None:
+        self.last: tuple[object, ...] = ()
+
+    def __call__(self, topic: str, document: dict[str, Any]) -> None:
+        if topic == "frf":
+            print(f"FRF of the {document['amplitude_nm']:g} N*m chirp", file=sys.stderr)
+        elif topic == "result":
+            print_report(document, document.get("fixed", {}))
+        elif topic == "progress" and "search" not in document:
+            state = (document["session"], document["stage"], document.get("phase"))
+            if state == self.last and "message" not in document:
+                return
+            self.last = state
+            data = document.get("data_s")
+            text = f"session {document['session']}: {document['stage']}"
+            text += f", phase {document['phase']}" if document.get("phase") else ""
+            text += f", {data:.1f} s of data" if data is not None else ""
+            text += f": {document['message']}" if document.get("message") else ""
+            text += f" ({', '.join(document['files'])})" if document.get("files") else ""
+            print(text, file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,18 +85,13 @@ def run(args: argparse.Namespace) -> int:
         plot=not args.no_plot,
     )
     worker = Worker(config.pipeline, options)
-    worker.listeners.append(_terminal)
-    reports = []
-    worker.listeners.append(lambda topic, doc: reports.append(doc) if topic == "result" else None)
+    worker.listeners.append(_Terminal())
     stop = threading.Event()
     previous = {
         sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
     }
     try:
-        status = worker.serve(once=args.once, stop=stop)
+        return worker.serve(once=args.once, stop=stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
-    for document in reports:
-        print_report(document, {})
-    return status
