@@ -137,10 +137,12 @@ class Daemon:
         Raises
         ------
         ConfigError, DbcError, RecordingError
-            If the interface, plan, bus, output or endpoints are unusable (before the test runs).
+            If the interface (it needs the ``speed`` and ``test_torque`` roles), plan, bus, output
+            or endpoints are unusable (before the test runs).
         """
         config = self.config
         interface = load_interface(config.vehicle_interface.dbc, config.vehicle_interface.signals)
+        interface.signal_map.require("speed", "test_torque")
         plan = config.test.plan()
         self._tool = ToolFrames(interface, plan)
         self._phases = phases(plan)

@@ -193,8 +193,12 @@ class EchoFilter:
             self._sent.append((now, key))
 
     def is_tool_frame(self, frame: can.Message) -> bool:
-        """True for a frame on one of the tool's own IDs."""
-        return (frame.arbitration_id, frame.is_extended_id) in self._tx_keys
+        """True for a data frame on one of the tool's own IDs."""
+        return (
+            (frame.arbitration_id, frame.is_extended_id) in self._tx_keys
+            and not frame.is_error_frame
+            and not frame.is_remote_frame
+        )
 
     def is_echo(self, frame: can.Message) -> bool:
         """For a frame on the tool's IDs: True if it is an echo (and consume it), else foreign."""

@@ -101,7 +101,8 @@ class ToolFrames:
     Raises
     ------
     ConfigError
-        If the signal map has no ``test_torque`` role.
+        If the signal map has no ``test_torque`` role, or the plan's largest request does not fit
+        the DBC's test torque signal.
     """
 
     def __init__(self, interface: VehicleInterface, plan: TestPlan) -> None:
@@ -125,6 +126,9 @@ class ToolFrames:
             }
             for role, spec in interface.signal_map.roles.items()
         }
+        largest = float(np.max(np.abs(self.request_values), initial=0.0))
+        for value in (largest, -largest):  # a value the DBC cannot carry fails here, not mid-test
+            self._request(value, 1, 0, 0.0)
 
     def state_at(self, tau: float) -> int:
         """Tool state at test time ``tau`` (s): chirp, done after the last chirp, else settling."""

@@ -2,7 +2,7 @@
 
 Run from the repository root::
 
-    PYTHONPATH=. python benchmarks/bench_daemon.py [--quick]
+    PYTHONPATH=. python benchmarks/bench_daemon.py [--quick] [--bus virtual|udp]
 
 (a) Throughput, on one core (the process pinned to CPU 0): pre-built frames go through the
     daemon's real per-frame path, :meth:`acquisition.framepath.FramePath.take` (bus time, echo
@@ -14,16 +14,21 @@ Run from the repository root::
     of 200 frames (the daemon's batch at about 100,000 frames/s with a 2 ms block period) and,
     for the ECU mix, of 1 frame (a quiet bus: one event per frame). Compared with the highest
     frame rate of a 1 Mbit/s classical CAN bus, computed below without bit stuffing.
-(b) Latency: the whole daemon (:class:`acquisition.daemon.Daemon`) on python-can's in-process
-    ``virtual`` bus with a fake engine ECU thread sending speed, torque-request and mean-torque
-    frames, and a ZeroMQ SUB subscriber in a separate process. Latency of a frame = the
-    subscriber's ``time.time()`` when the samples event holding it arrives minus the frame's
-    send time (the virtual bus stamps ``time.time()`` at sending, and with ``time_factor`` 1 the
-    samples carry it unchanged). Median and 99th percentile over every ECU frame of the test, at
-    the ECU rate of an engine at 1000 rpm (167 frames/s) and at a heavy 3000 frames/s.
+(b) Latency: the whole daemon (:class:`acquisition.daemon.Daemon`) with a fake engine ECU sending
+    speed, torque-request and mean-torque frames, and a ZeroMQ SUB subscriber in a separate
+    process. Latency of a frame = the subscriber's ``time.time()`` when the samples event holding
+    it arrives minus the frame's timestamp in that event (``time_factor`` 1: the receive time on
+    the bus, in ``time.time()``). Median, 99th percentile and maximum over every ECU frame of a
+    test, at the ECU rate of an engine at 1000 rpm (167 frames/s) and at a heavy 3000 frames/s.
+    Two buses: ``--bus virtual`` (default), python-can's in-process virtual bus with the ECU as a
+    thread of this process (its timestamps are the send times); ``--bus udp``, python-can's
+    ``udp_multicast`` with the ECU in another process, inside a private network namespace whose
+    only interface is loopback (the script re-runs itself under ``unshare -n``; its timestamps
+    are the kernel's receive times at the daemon's socket). udp_multicast is never opened
+    outside such a namespace.
 
-Prints the figures and writes them to ``benchmarks/results/daemon.json``. A benchmark, not a test:
-nothing is asserted.
+Prints the figures and writes them to ``benchmarks/results/daemon_<bus>.json``. A benchmark, not
+a test: nothing is asserted.
 """
 
 from __future__ import annotations
@@ -45,6 +50,7 @@ from typing import Any
 import can
 import numpy as np
 
+from acquisition import netns
 from acquisition.clock import BusClock
 from acquisition.config import (
     AcquisitionConfig,
@@ -63,7 +69,15 @@ from acquisition.server import EventServer
 from dbc.loader import load_interface
 
 REPO = Path(__file__).resolve().parents[1]
-RESULTS = REPO / "benchmarks" / "results" / "daemon.json"
+RESULTS = REPO / "benchmarks" / "results"
+UDP_GROUP = "239.74.163.2"
+"""IPv4 multicast group of the udp_multicast latency test (IPv6 groups deliver nothing on lo)."""
+UNSHARE = ["unshare", "--net", "--"] if os.geteuid() == 0 else ["unshare", "-r", "--net", "--"]
+NAMESPACE_SETUP = (
+    "ip link set lo up && ip link set lo multicast on && ip route add 224.0.0.0/4 dev lo && "
+    'exec "$@"'
+)
+"""Loopback of the private namespace up, with multicast and the multicast route."""
 
 BITRATE = 1_000_000
 """Bit rate of the fastest classical CAN bus, bit/s."""
@@ -164,29 +178,33 @@ def throughput(frames: list[can.Message], block: int, repeats: int, workdir: Pat
     return best
 
 
-class FakeEcu(threading.Thread):
-    """Engine ECU frames on a virtual bus at ``rate`` frames/s (speed, request, mean torque)."""
+def send_ecu_frames(bus: can.BusABC, rate: float, stop: threading.Event) -> None:
+    """Engine ECU frames at ``rate`` frames/s until ``stop``: speed and torque request at every
+    crank event, the mean torque at every other (2.5 frames per event), counters running."""
+    interface = load_interface()
+    encode, send = interface.encode, bus.send
+    period = 2.5 / rate
+    start = time.time()
+    event = 0
+    while not stop.is_set():
+        time.sleep(max(0.0, start + event * period - time.time()))
+        send(encode("speed", 1000.0, 0.0, counter=event % 65536))
+        send(encode("torque_request", 20.0, 0.0, counter=event % 256))
+        if event % 2 == 0:
+            send(encode("mean_torque", 20.0, 0.0, counter=event // 2 % 256, cylinder=0))
+        event += 1
 
-    def __init__(self, channel: str, rate: float) -> None:
-        super().__init__(daemon=True)
-        self.bus = can.Bus(interface="virtual", channel=channel)
-        self.interface = load_interface()
-        self.period = 2.5 / rate  # 2.5 frames per crank event
-        self.stop = threading.Event()
 
-    def run(self) -> None:
-        encode, send = self.interface.encode, self.bus.send
-        start = time.time()
-        event = 0
-        while not self.stop.is_set():
-            time.sleep(max(0.0, start + event * self.period - time.time()))
-            send(encode("speed", 1000.0, 0.0, counter=event % 65536))
-            send(encode("torque_request", 20.0, 0.0, counter=event % 256))
-            if event % 2 == 0:
-                send(encode("mean_torque", 20.0, 0.0, counter=event // 2 % 256, cylinder=0))
-            event += 1
-        self.bus.shutdown()
-
+UDP_ECU = """
+import sys, threading
+sys.path.insert(0, {repo!r})
+from acquisition.bus import open_bus
+from acquisition.config import BusConfig
+from benchmarks.bench_daemon import send_ecu_frames
+bus = open_bus(BusConfig(interface="udp_multicast", channel={group!r}))
+print("ready", flush=True)
+send_ecu_frames(bus, {rate!r}, threading.Event())
+"""
 
 SUBSCRIBER = """
 import json, sys, time, zmq
@@ -209,11 +227,16 @@ json.dump(latencies, open(sys.argv[2], "w"))
 """
 
 
-def latency(rate: float, duration_s: float, workdir: Path) -> dict[str, float]:
-    """Bus-to-subscriber latency of the ECU frames of one test, s."""
+def latency(bus: str, rate: float, duration_s: float, workdir: Path) -> dict[str, Any]:
+    """Bus-to-subscriber latency of the ECU frames of one test on ``bus`` (``virtual``: ECU
+    thread in this process; ``udp``: ECU process on udp_multicast), s."""
     directory = workdir / f"latency-{uuid.uuid4().hex[:8]}"
+    if bus == "udp":
+        bus_config = BusConfig(interface="udp_multicast", channel=UDP_GROUP)
+    else:
+        bus_config = BusConfig(interface="virtual", channel=f"bench-{uuid.uuid4().hex}")
     config = AcquisitionConfig(
-        bus=BusConfig(interface="virtual", channel=f"bench-{uuid.uuid4().hex}"),
+        bus=bus_config,
         test=TestConfig(
             amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=duration_s, settle_s=0.5
         ),
@@ -230,16 +253,30 @@ def latency(rate: float, duration_s: float, workdir: Path) -> dict[str, float]:
     )
     assert subscriber.stdout is not None
     subscriber.stdout.readline()  # connected (it reconnects until the daemon binds)
-    ecu = FakeEcu(config.bus.channel, rate)
-    daemon = Daemon(config, linger_s=0.5, wait_s=10.0)
-    threading.Timer(0.2, ecu.start).start()  # after the daemon's bus is open
+    stop = threading.Event()
+    if bus == "udp":
+        script = UDP_ECU.format(repo=str(REPO), group=UDP_GROUP, rate=rate)
+        ecu = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+        assert ecu.stdout is not None
+        ecu.stdout.readline()  # its bus is open; the daemon waits for its first speed frame
+    else:
+        ecu_bus = can.Bus(interface="virtual", channel=config.bus.channel)
+        thread = threading.Thread(target=send_ecu_frames, args=(ecu_bus, rate, stop), daemon=True)
+        threading.Timer(0.2, thread.start).start()  # after the daemon's bus is open
     try:
-        result = daemon.run()
+        result = Daemon(config, linger_s=0.5, wait_s=10.0).run()
     finally:
-        ecu.stop.set()
+        if bus == "udp":
+            ecu.kill()
+            ecu.wait()
+        else:
+            stop.set()
+            thread.join()
+            ecu_bus.shutdown()
     subscriber.wait(60)
     values = np.array(json.loads(out.read_text()))
     return {
+        "bus": bus,
         "ecu_frames_per_s": rate,
         "frames": len(values),
         "status": result.status,
@@ -249,10 +286,22 @@ def latency(rate: float, duration_s: float, workdir: Path) -> dict[str, float]:
     }
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer frames and a shorter test")
+    parser.add_argument(
+        "--bus",
+        choices=("virtual", "udp"),
+        default="virtual",
+        help="bus of the latency test: python-can's in-process virtual bus (default) or "
+        "udp_multicast with the ECU in another process, inside a private network namespace "
+        "(the script re-runs itself under `unshare -n`; needs root or user namespaces)",
+    )
     args = parser.parse_args()
+    if args.bus == "udp" and not netns.only_loopback():
+        return subprocess.call(
+            [*UNSHARE, "sh", "-c", NAMESPACE_SETUP, "sh", sys.executable, *sys.argv]
+        )
     n = 20_000 if args.quick else 100_000
     repeats = 2 if args.quick else 3
     duration = 5.0 if args.quick else 20.0
@@ -284,18 +333,20 @@ def main() -> None:
         os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
         latencies = {}
         for rate in (167.0, 3000.0):
-            figures = latency(rate, duration, workdir)
+            figures = latency(args.bus, rate, duration, workdir)
             latencies[f"{rate:g}_frames_per_s"] = figures
             print(
-                f"latency at {rate:6.0f} frames/s: median {figures['median_ms']:.3f} ms, "
-                f"p99 {figures['p99_ms']:.3f} ms, max {figures['max_ms']:.1f} ms "
+                f"latency ({args.bus}) at {rate:6.0f} frames/s: median {figures['median_ms']:.3f} "
+                f"ms, p99 {figures['p99_ms']:.3f} ms, max {figures['max_ms']:.1f} ms "
                 f"({figures['frames']} frames, test {figures['status']})"
             )
         results["latency"] = latencies
-    RESULTS.parent.mkdir(exist_ok=True)
-    RESULTS.write_text(json.dumps(results, indent=1) + "\n")
-    print(f"wrote {RESULTS}")
+    out = RESULTS / f"daemon_{args.bus}.json"
+    out.parent.mkdir(exist_ok=True)
+    out.write_text(json.dumps(results, indent=1) + "\n")
+    print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

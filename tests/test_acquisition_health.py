@@ -105,6 +105,15 @@ def test_frame_never_sent_is_foreign_and_other_ids_are_not_tool_frames() -> None
     assert not echo.is_tool_frame(INTERFACE.encode("speed", 1000.0, 0.0, counter=1))
 
 
+def test_error_and_remote_frames_on_the_tool_id_are_not_tool_frames() -> None:
+    echo = EchoFilter([INTERFACE.frame_key("test_torque")])
+    request_id, _ = INTERFACE.frame_key("test_torque")
+    remote = can.Message(arbitration_id=request_id, is_extended_id=False, is_remote_frame=True)
+    error = can.Message(arbitration_id=request_id, is_extended_id=False, is_error_frame=True)
+    assert echo.is_tool_frame(_request(1))
+    assert not echo.is_tool_frame(remote) and not echo.is_tool_frame(error)
+
+
 def test_identical_frames_sent_twice_have_two_echoes() -> None:
     echo = EchoFilter([INTERFACE.frame_key("test_torque")])
     for _ in range(2):

@@ -5,11 +5,13 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from acquisition.sequence import ToolFrames, phases
 from dbc import tool_state
 from dbc.checksum import verify_checksum
 from dbc.loader import load_interface
+from dtid.errors import ConfigError
 from simulator import simulate
 from simulator.chirp import TestPlan
 from simulator.vehicle_frames import simulation_frames
@@ -102,3 +104,8 @@ def test_tool_states_are_the_dbc_value_table() -> None:
     }
     message = INTERFACE.database.get_message_by_name("ToolHeartbeat")
     assert message.cycle_time == round(tool_state.HEARTBEAT_PERIOD_S * 1000)
+
+
+def test_request_the_dbc_cannot_carry_is_refused_before_the_test() -> None:
+    with pytest.raises(ConfigError, match="TestTorque"):
+        ToolFrames(INTERFACE, TestPlan(amplitudes_nm=(400.0,)))
