@@ -31,6 +31,7 @@ from acquisition.config import (
     BusConfig,
     OutputConfig,
     PipelineConfig,
+    SafetyConfig,
     TestConfig,
 )
 from acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
@@ -50,6 +51,8 @@ ECU_IDS = {INTERFACE.frame_key(role)[0] for role in ("speed", "mean_torque", "to
 CRANK_EVENT_S = 0.015
 """Time between two speed frames at 1000 rpm (pi/2 of crank angle), s."""
 TIME_FACTOR = 2.0
+VEHICLE_TIMEOUT_S = 1.0
+"""Bus time (0.5 s wall): long enough that a busy machine never stalls the fake ECU that long."""
 SHORT_TEST = TestConfig(
     amplitudes_nm=(5.0, 10.0), validation_nm=2.0, duration_s=1.0, settle_s=0.3, pause_s=0.3
 )
@@ -166,6 +169,7 @@ def make_config(tmp_path: Path, **sections: object) -> AcquisitionConfig:
             interface="virtual", channel=f"dtid-{uuid.uuid4().hex}", time_factor=TIME_FACTOR
         ),
         test=SHORT_TEST,
+        safety=SafetyConfig(vehicle_timeout_s=VEHICLE_TIMEOUT_S),
         output=OutputConfig(directory=tmp_path / "runs", flush_period_s=0.1),
         pipeline=PipelineConfig(blocks=f"ipc://{ipc}/blocks", replay=f"ipc://{ipc}/replay"),
     )
@@ -414,6 +418,7 @@ def start_subprocess_daemon(tmp_path: Path) -> tuple[subprocess.Popen[str], str]
         "amplitudes_nm = [5.0, 10.0]\nduration_s = 2.0\nsettle_s = 0.3\npause_s = 0.3\n"
         "[output]\n"
         f'directory = "{tmp_path / "runs"}"\nflush_period_s = 0.1\n'
+        f"[safety]\nvehicle_timeout_s = {VEHICLE_TIMEOUT_S}\n"
         "[pipeline]\n"
         f'blocks = "{config.pipeline.blocks}"\nreplay = "{config.pipeline.replay}"\n'
     )
