@@ -51,6 +51,7 @@ from acquisition.sequence import ZERO_REQUESTS, Phase, RequestSender, ToolFrames
 from acquisition.server import EventServer
 from acquisition.stream import ABORT_REASONS
 from dbc.loader import load_interface
+from dtid.errors import ConfigError
 
 logger = logging.getLogger(__name__)
 
@@ -152,13 +153,17 @@ class Daemon:
             cleanup.callback(bus.shutdown)
             self._bus = bus
             session_dir = new_session_directory(Path(config.output.directory))
+            try:
+                server = EventServer(config.pipeline, session_dir.name)
+            except ConfigError:
+                session_dir.rmdir()  # still empty: no session took place
+                raise
+            cleanup.callback(server.close)
             log_path = session_dir / f"{session_dir.name}.{config.output.log_format}"
             recorder = Recorder(
                 log_path, clock.start_wall_s, config.output.flush_period_s, config.bus.channel
             )
             cleanup.callback(recorder.close)
-            server = EventServer(config.pipeline, session_dir.name)
-            cleanup.callback(server.close)
             self._recorder = recorder
             keys = [interface.frame_key("test_torque")]
             if "heartbeat" in interface.present_roles():

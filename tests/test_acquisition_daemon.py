@@ -41,6 +41,7 @@ from acquisition.stream import decode_event
 from dbc.checksum import verify_checksum
 from dbc.loader import load_interface
 from dbc.tool_state import TOOL_ABORT
+from dtid.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 INTERFACE = load_interface()
@@ -471,3 +472,17 @@ def test_log_survives_sigkill(tmp_path: Path) -> None:
     speed = INTERFACE.decode(log)["speed"]
     counters = speed.extra["counter"]
     assert counters.tolist() == list(range(counters[0], counters[0] + len(counters)))
+
+
+def test_endpoint_in_use_is_refused_before_any_session(tmp_path: Path) -> None:
+    context = zmq.Context.instance()
+    blocker = context.socket(zmq.PUB)
+    blocker.bind("tcp://127.0.0.1:*")
+    endpoint = blocker.getsockopt_string(zmq.LAST_ENDPOINT)
+    config = make_config(tmp_path, pipeline={"blocks": endpoint})
+    try:
+        with pytest.raises(ConfigError, match="cannot bind"):
+            Daemon(config, linger_s=0.0, wait_s=0.2).run()
+    finally:
+        blocker.close(0)
+    assert list((tmp_path / "runs").iterdir()) == []
