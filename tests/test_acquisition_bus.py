@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -85,9 +88,12 @@ def test_clock_refuses_a_factor_that_is_not_positive() -> None:
 
 
 @pytest.fixture
-def pipeline() -> PipelineConfig:
-    ipc = Path("/tmp") / f"dtid-test-{uuid.uuid4().hex[:12]}" / "nested"
-    return PipelineConfig(blocks=f"ipc://{ipc}/blocks", replay=f"ipc://{ipc}/replay")
+def pipeline() -> Iterator[PipelineConfig]:
+    """Endpoints in a folder that does not exist yet (the server makes it)."""
+    top = Path(tempfile.mkdtemp(prefix="dtid-test-", dir="/tmp"))
+    ipc = top / "nested"
+    yield PipelineConfig(blocks=f"ipc://{ipc}/blocks", replay=f"ipc://{ipc}/replay")
+    shutil.rmtree(top, ignore_errors=True)
 
 
 def replay(endpoint: str, request: bytes) -> object:

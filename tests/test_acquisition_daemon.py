@@ -11,13 +11,15 @@ from __future__ import annotations
 
 import json
 import select
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import can
@@ -162,9 +164,22 @@ class Subscriber(threading.Thread):
         self.context.term()
 
 
+IPC_DIRECTORIES: list[Path] = []
+"""Folders of the ipc endpoints made by :func:`make_config`, removed after each test."""
+
+
+@pytest.fixture(autouse=True)
+def _remove_ipc_directories() -> Iterator[None]:
+    yield
+    while IPC_DIRECTORIES:
+        shutil.rmtree(IPC_DIRECTORIES.pop(), ignore_errors=True)
+
+
 def make_config(tmp_path: Path, **sections: object) -> AcquisitionConfig:
-    """A short test on a fresh virtual channel, output and endpoints under ``tmp_path``."""
-    ipc = Path("/tmp") / f"dtid-test-{uuid.uuid4().hex[:12]}"
+    """A short test on a fresh virtual channel, output under ``tmp_path``, endpoints in a short
+    folder of /tmp (a Unix socket path has at most 107 bytes)."""
+    ipc = Path(tempfile.mkdtemp(prefix="dtid-test-", dir="/tmp"))
+    IPC_DIRECTORIES.append(ipc)
     config = AcquisitionConfig(
         bus=BusConfig(
             interface="virtual", channel=f"dtid-{uuid.uuid4().hex}", time_factor=TIME_FACTOR
