@@ -82,7 +82,6 @@ class FramePath:
         echo: EchoFilter,
         session_fields: Mapping[str, Any],
     ) -> None:
-        self._interface = interface
         self._clock = clock
         self._recorder = recorder
         self._write = recorder.write

@@ -129,7 +129,6 @@ class Health:
             for role, modulo in counter_moduli(interface, COUNTED_ROLES).items()
         }
         self._message_of = {role: spec.message for role, spec in interface.signal_map.roles.items()}
-        self._bad_before = 0
 
     def update(self, decoded: Mapping[str, RoleSeries]) -> None:
         """Count the lost, duplicated, out-of-order and bad frames of one decoded block."""
