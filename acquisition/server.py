@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import socket as socketlib
 import threading
 from collections.abc import Mapping
 from pathlib import Path
@@ -43,10 +44,30 @@ def bind(socket: zmq.Socket, endpoint: str, what: str) -> None:
     """
     try:
         if endpoint.startswith("ipc://"):
-            Path(endpoint[len("ipc://") :]).parent.mkdir(parents=True, exist_ok=True)
+            path = Path(endpoint[len("ipc://") :])
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if _listening(path):
+                raise ConfigError(
+                    f"[pipeline] {what} = {endpoint!r}: cannot bind: another process (a daemon "
+                    "still running?) serves it"
+                )
         socket.bind(endpoint)
     except (OSError, zmq.ZMQError) as error:
         raise ConfigError(f"[pipeline] {what} = {endpoint!r}: cannot bind: {error}") from error
+
+
+def _listening(path: Path) -> bool:
+    """True when a process accepts connections on the Unix socket ``path``.
+
+    ZeroMQ binds an ipc endpoint by replacing the socket file, silently taking it from a daemon
+    that still runs; this asks first.
+    """
+    with socketlib.socket(socketlib.AF_UNIX, socketlib.SOCK_STREAM) as probe:
+        try:
+            probe.connect(str(path))
+        except OSError:
+            return False
+    return True
 
 
 class EventServer:

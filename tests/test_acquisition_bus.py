@@ -139,6 +139,17 @@ def test_endpoint_in_use_is_a_config_error(pipeline: PipelineConfig) -> None:
         blocker.close(0)
 
 
+def test_ipc_endpoint_of_a_running_server_is_not_taken_over(pipeline: PipelineConfig) -> None:
+    server = EventServer(pipeline, "first")
+    try:
+        with pytest.raises(ConfigError, match="another process"):
+            EventServer(pipeline, "second")
+        assert server.publish("end", {})["seq"] == 0
+        assert replay(pipeline.replay, b'{"from_seq": 0}')[0]["session"] == "first"
+    finally:
+        server.close()
+
+
 def test_cli_bus_error_is_one_line_and_exit_2(tmp_path: Path) -> None:
     channel = f"dtid{uuid.uuid4().hex[:8]}"
     result = subprocess.run(
