@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from threading import Event
 
@@ -30,9 +30,9 @@ from simulator.ecu_requests import RequestReceiver
 from simulator.plant_stepper import PlantStepper
 from simulator.vehicle_frames import EcuFrames
 
-TICK_S = 0.002
+TICK_S = 0.001
 """Longest wall time between two plant segments, s."""
-MAX_SEGMENT_S = 0.01
+MAX_SEGMENT_S = 0.005
 """Longest bus time of one plant segment (the tool's request period), s."""
 
 
@@ -168,56 +168,72 @@ class VirtualVehicle:
         self.report = VehicleReport()
         self._rng = np.random.default_rng(self.faults.seed)
         self._applied = 0.0
+        self._start_wall = 0.0
+        self._start_epoch = 0.0
 
     def run(self, duration_s: float | None = None, stop: Event | None = None) -> VehicleReport:
         """Run until ``duration_s`` of bus time has passed or ``stop`` is set.
+
+        The plant runs one tick ahead of bus time; each frame is sent when its own time comes,
+        so its receive time stamps it to within the scheduler's jitter.
 
         Returns
         -------
         VehicleReport
         """
         stop = stop or Event()
-        start_wall = time.monotonic()
-        start_epoch = time.time()
+        self._start_wall = time.monotonic()
+        self._start_epoch = time.time()
+        end = math.inf if duration_s is None else duration_s
+        pending: deque[can.Message] = deque()  # stamped with bus time until sent
         step_pending = self.setpoint_step
         while not stop.is_set():
-            now = (time.monotonic() - start_wall) * self.speedup
-            if duration_s is not None:
-                now = min(now, duration_s)
-            if step_pending is not None and now >= step_pending.at_s:
+            now = (time.monotonic() - self._start_wall) * self.speedup
+            if now >= end and not pending:
+                break
+            horizon = min(now + TICK_S * self.speedup, end)
+            if step_pending is not None and horizon >= step_pending.at_s:
                 self.plant.set_setpoint(step_pending.setpoint_rpm)
                 step_pending = None
-            self._advance_to(now, start_epoch)
-            if duration_s is not None and now >= duration_s:
-                break
-            self._receive_until(time.monotonic() + TICK_S, start_wall)
+            pending.extend(self._advance_to(horizon))
+            wake = time.monotonic() + TICK_S
+            if pending:
+                wake = min(wake, self._due(pending[0]))
+            self._receive_until(wake)
+            while pending and self._due(pending[0]) <= time.monotonic():
+                self._send(pending.popleft())
         self.report.bus_time_s = self.plant.time_s
         self.report.requests_accepted = self.receiver.accepted
         self.report.requests_dropped = dict(self.receiver.dropped)
         return self.report
 
-    def _receive_until(self, deadline_wall: float, start_wall: float) -> None:
+    def _due(self, frame: can.Message) -> float:
+        """Monotonic wall time at which a frame stamped with bus time is due."""
+        return self._start_wall + frame.timestamp / self.speedup
+
+    def _receive_until(self, deadline_wall: float) -> None:
         """Take the frames arriving before ``deadline_wall`` (monotonic time)."""
         while (remaining := deadline_wall - time.monotonic()) > 0:
             frame = self.bus.recv(timeout=remaining)
             if frame is None:
                 return
             if self.receiver.is_request(frame):
-                arrival = (time.monotonic() - start_wall) * self.speedup
+                arrival = (time.monotonic() - self._start_wall) * self.speedup
                 self.receiver.receive(frame, max(arrival, self.plant.time_s))
 
-    def _advance_to(self, now: float, start_epoch: float) -> None:
-        """Advance the plant to bus time ``now`` in segments and send their frames."""
-        while self.plant.time_s < now and not self.plant.stalled:
-            t_end = min(now, self.plant.time_s + MAX_SEGMENT_S)
+    def _advance_to(self, horizon: float) -> list[can.Message]:
+        """Advance the plant to bus time ``horizon`` in segments; return their frames."""
+        frames: list[can.Message] = []
+        while self.plant.time_s < horizon and not self.plant.stalled:
+            t_end = min(horizon, self.plant.time_s + MAX_SEGMENT_S)
             self._track_applied(self.plant.time_s)
             speed, torque = self.plant.advance(t_end, self._applied)
-            frames = self.ecu.speed_frames(speed[:, :3]) + self.ecu.stroke_frames(torque)
-            frames.sort(key=lambda frame: frame.timestamp)
-            for frame in frames:
-                self._send(frame, start_epoch)
+            segment = self.ecu.speed_frames(speed[:, :3]) + self.ecu.stroke_frames(torque)
+            segment.sort(key=lambda frame: frame.timestamp)
+            frames += segment
             if self.plant.stalled and self.report.stalled_at_s is None:
                 self.report.stalled_at_s = self.plant.time_s
+        return frames
 
     def _track_applied(self, now: float) -> None:
         """Update the applied test torque and note when it goes to zero, and why."""
@@ -231,9 +247,9 @@ class VirtualVehicle:
             self.report.zero_cause = "timeout" if self.receiver.timed_out(now) else "request"
         self._applied = applied
 
-    def _send(self, frame: can.Message, start_epoch: float) -> None:
-        """Send a frame (bus time stamped as wall time), with the configured faults."""
-        frame.timestamp = start_epoch + frame.timestamp / self.speedup
+    def _send(self, frame: can.Message) -> None:
+        """Send a frame (its bus time restamped as wall time), with the configured faults."""
+        frame.timestamp = self._start_epoch + frame.timestamp / self.speedup
         copies = 1
         if self.faults.any:
             draw = self._rng.random(3)
