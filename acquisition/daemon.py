@@ -19,14 +19,17 @@ The test starts when the first engine speed frame is decoded (the daemon waits u
   stops; this runs in ``finally`` blocks, so no exit of the daemon's loop skips it (only
   ``kill -9`` does; then the vehicle's own request timeout applies).
 
-After the ``end`` event the log is closed and the replay socket stays up for ``linger_s`` (wall)
-so a restarting worker can still catch up; a further signal cuts the linger short.
+After the ``end`` event the log is closed, the session's health counts are reported as one line
+(``health: {json}``, the keys of :class:`acquisition.health.HealthCounts`), and the replay
+socket stays up for ``linger_s`` (wall) so a restarting worker can still catch up; a further
+signal cuts the linger short.
 """
 
 from __future__ import annotations
 
 import contextlib
 import gc
+import json
 import logging
 import signal
 import sys
@@ -311,7 +314,12 @@ class Daemon:
             text += (
                 f" {phase.chirp + 1} of {len(self._tool.plan.chirps)}: {phase.amplitude_nm:g} N*m"
             )
-        self.report(text)
+        counts = self._path.health.counts
+        text += f"  (frames {self._recorder.frames}"
+        for name, value in asdict(counts).items():
+            if name != "frames" and value:
+                text += f", {name} {value}"
+        self.report(text + ")")
         if phase.name == "done":
             self._status, self._t_end = "completed", t_s
 
@@ -352,6 +360,7 @@ class Daemon:
         path.publish_health()
         path.publish("end", {"status": self._status, "reason": self._reason, "t_s": self._t_end})
         self._recorder.close()
+        self.report("health: " + json.dumps(asdict(path.health.counts)))
         if self._status == "completed":
             self.report("end: completed")
         else:

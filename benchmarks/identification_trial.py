@@ -17,7 +17,7 @@ import numpy as np
 
 from identification.identify import SearchSettings, engine_gain, identify, split_runs
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.start_values import start_theta
+from identification.start_values import start_thetas
 from identification.test_setup import MeasuredTest
 from identification.testdata import from_simulation
 from simulator.parameters import DrivetrainParameters, reference_parameters
@@ -51,9 +51,9 @@ def main() -> None:
     ident, valid = split_runs([measured])
     prior = reference_parameters()
     par = Parameterization.around(prior, measured.idle_torque_nm, engine_gain([measured]))
-    start = start_theta([measured.estimates[i] for i in ident[0]], prior)
+    starts = start_thetas([measured.estimates[i] for i in ident[0]], prior)
     settings = SearchSettings(generations=args.generations, polish_evaluations=args.polish)
-    result = identify([measured], par, ident, valid, settings, start=start)
+    result = identify([measured], par, ident, valid, settings, starts=starts)
     true_theta = theta_from_parameters(truth)
     print(
         f"truth {args.truth}: {result.seconds:.1f} s wall, {result.parameter_sets} parameter "

@@ -129,12 +129,33 @@ def split_runs(
     """Indices of the identification and validation runs of each recording.
 
     By default the two largest amplitudes identify and the others validate (the paper: 5 and
-    10 N*m identify, 2 N*m validates). Amplitudes match within 5 %.
+    10 N*m identify, 2 N*m validates). Amplitudes match within 5 %. A run without an FRF
+    (:attr:`identification.test_setup.MeasuredTest.unusable`) counts in the choice of the
+    amplitudes: at an identifying amplitude it is an error, else it is left out with a warning.
+
+    Raises
+    ------
+    AnalysisError
+        If no run identifies, or a run that should cannot give an FRF.
     """
-    amplitudes = sorted({round(e.run.amplitude_nm, 3) for t in tests for e in t.estimates})
+    runs = [e.run for t in tests for e in t.estimates] + [r for t in tests for r, _ in t.unusable]
+    amplitudes = sorted({round(run.amplitude_nm, 3) for run in runs})
     chosen = list(identify_amplitudes) if identify_amplitudes else amplitudes[-2:]
     ident, valid = [], []
     for test in tests:
+        for run, reason in test.unusable:
+            if any(abs(run.amplitude_nm - a) <= 0.05 * a for a in chosen):
+                raise AnalysisError(
+                    f"{test.name}: the {run.amplitude_nm:g} N*m run identifies but cannot give "
+                    f"an FRF: {reason}"
+                )
+            logger.warning(
+                "%s: the %g N*m run at %.1f s is left out of the validation: %s",
+                test.name,
+                run.amplitude_nm,
+                run.start_s,
+                reason,
+            )
         picks = [
             i
             for i, e in enumerate(test.estimates)
@@ -158,7 +179,7 @@ def identify(
     validate_runs: Sequence[Sequence[int]],
     settings: SearchSettings | None = None,
     progress: Progress | None = None,
-    start: dict[str, float] | None = None,
+    starts: Sequence[dict[str, float]] = (),
 ) -> Identification:
     """Identify the free parameters from the identification runs and validate on the others.
 
@@ -174,7 +195,7 @@ def identify(
         Search budget and seed.
     progress
         Called after each generation and polish step.
-    start
+    starts
         Setup-4 start values (see :mod:`identification.start_values`); they join the initial
         population, the rest of which covers the whole box (a Latin hypercube).
     """
@@ -201,9 +222,9 @@ def identify(
         population = stats.qmc.LatinHypercube(n_free, seed=settings.seed).random(
             settings.popsize * n_free
         )
-        if start is not None:
+        for row, start in enumerate(starts):
             theta = np.array([[start[name] for name in THETA_NAMES]])
-            population[0] = np.clip(parameterization.unit(theta)[0], 0.0, 1.0)
+            population[row] = np.clip(parameterization.unit(theta)[0], 0.0, 1.0)
         result = optimize.differential_evolution(
             lambda u: objective(u.T),
             [(0.0, 1.0)] * n_free,

@@ -33,7 +33,7 @@ from identification.objective import nrmse
 from identification.parameterization import THETA_UNITS, Parameterization
 from identification.profile import Profile, profile
 from identification.runs import ZERO_FRACTION
-from identification.start_values import start_theta
+from identification.start_values import start_thetas
 from identification.test_setup import MeasuredTest
 from identification.testdata import Series, TestData
 from simulator.parameters import DrivetrainParameters
@@ -290,8 +290,8 @@ def identify_runs(
         else float(np.mean([t.idle_torque_nm for t in tests]))
     )
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds)
-    start = start_theta(selection.estimates(), prior)
-    result = identify(tests, par, ident, [[] for _ in tests], settings, progress, start=start)
+    starts = start_thetas(selection.estimates(), prior)
+    result = identify(tests, par, ident, [[] for _ in tests], settings, progress, starts=starts)
     profiles: dict[str, Profile] = {}
     if profile_points:
         measured_db = [e.drv_db for e in selection.estimates()]

@@ -13,6 +13,7 @@ import numpy as np
 from acquisition.logfile import read_log
 from dbc.interface import RoleSeries, VehicleInterface
 from dtid.errors import AnalysisError
+from identification.late_frames import retime_late_bursts
 from identification.testdata import Series, TestData
 
 logger = logging.getLogger(__name__)
@@ -65,13 +66,35 @@ class Recording:
             )
         request = self.roles.get("torque_request")
         return TestData(
-            speed=self.series("speed"),
-            mean_torque=self.series("mean_torque"),
+            speed=self._crank_series("speed"),
+            mean_torque=self._crank_series("mean_torque"),
             test_torque=self.series("test_torque"),
-            torque_request=self.series("torque_request")
+            torque_request=self._crank_series("torque_request")
             if request is not None and len(request.timestamps) > 1
             else None,
         )
+
+    def _crank_series(self, role: str) -> Series:
+        """A crank-synchronous role's samples: a frame repeating its predecessor's counter (a
+        duplicate) dropped, where the map names the counter, and samples that came late in a
+        burst re-timed (:func:`identification.late_frames.retime_late_bursts`)."""
+        decoded = self.roles[role]
+        t, value = decoded.timestamps, decoded.values
+        counter = decoded.extra.get("counter")
+        if counter is not None and len(counter) > 1:
+            keep = np.concatenate(([True], np.diff(counter) != 0))
+            t, value = t[keep], value[keep]
+        retiming = retime_late_bursts(t)
+        if retiming.n_moved:
+            logger.warning(
+                "%s: %d '%s' samples arrived late in bursts (up to %.3f s); re-timed to their "
+                "crank slots",
+                self.path,
+                retiming.n_moved,
+                role,
+                retiming.max_shift_s,
+            )
+        return Series(retiming.times, value)
 
 
 def _in_time_order(series: RoleSeries, start: float, path: Path) -> RoleSeries:

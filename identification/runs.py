@@ -2,8 +2,8 @@
 
 A run is a stretch where the test torque is not zero, ended by a pause of at least
 ``min_pause_s``. Its amplitude is the peak of the request; its start and end frequencies come from
-a straight-line fit of the instantaneous frequency measured between zero crossings, which is what
-eq. (11) prescribes for a linear chirp.
+a robust straight-line fit (Theil-Sen) of the instantaneous frequency measured between zero
+crossings, which is what eq. (11) prescribes for a linear chirp.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from scipy import stats
 
 from identification.testdata import Series
 
@@ -18,6 +19,12 @@ MIN_PAUSE_S = 0.5
 """A test torque of zero for at least this long separates two runs, s."""
 MIN_RUN_S = 1.0
 """Shorter stretches of non-zero test torque are not chirp runs (a blip, a test frame), s."""
+MAX_SPACING = 1.5
+"""Samples further apart than this many median sample intervals (a hole: the sender stalled), or
+closer than its inverse (a burst: the sender caught up), make the half periods across them
+irregular: they are not used for the frequency sweep."""
+MIN_HALF_PERIODS = 8
+"""Fewer regular half periods than this and the sweep is fitted through all of them."""
 ZERO_FRACTION = 1e-3
 """Test-torque values below this fraction of the recording's peak count as zero."""
 
@@ -99,7 +106,17 @@ def _describe(t: np.ndarray, value: np.ndarray) -> ChirpRun | None:
     half_periods = np.diff(t_cross)
     frequency = 0.5 / half_periods
     t_mid = 0.5 * (t_cross[1:] + t_cross[:-1])
-    slope, intercept = np.polyfit(t_mid, frequency, 1)
+    # a sender that stalled leaves a hole in the requests, then catches up in a burst: a half
+    # period across either has the wrong length (a least-squares line through them gave f1 < 0)
+    spacing = np.diff(t)
+    typical = np.median(spacing)
+    irregular = (spacing > MAX_SPACING * typical) | (spacing < typical / MAX_SPACING)
+    breaks = np.concatenate(([0], np.cumsum(irregular)))
+    whole = breaks[cross[1:] + 1] == breaks[cross[:-1]]
+    if np.count_nonzero(whole) >= MIN_HALF_PERIODS:
+        t_mid, frequency = t_mid[whole], frequency[whole]
+    # Theil-Sen, robust to the irregular half periods this cannot see (jitter within the bounds)
+    slope, intercept, _, _ = stats.theilslopes(frequency, t_mid)
     start, end = float(t[0]), float(t[-1])
     return ChirpRun(
         start_s=start,

@@ -28,7 +28,7 @@ class MeasuredTest:
     data
         Its signals.
     estimates
-        FRF of every chirp run, in time order.
+        FRF of every chirp run that gives one, in time order.
     setpoint_rpm
         Mean filtered speed at idle outside the chirps, rpm: the idle set-point.
     idle_torque_nm
@@ -45,14 +45,28 @@ class MeasuredTest:
     setpoint_rpm: float
     idle_torque_nm: float
     combustion_variation: float
+    unusable: tuple[tuple[ChirpRun, str], ...] = ()
+    """Chirp runs that cannot give an FRF (lost frames, too short), each with the reason."""
 
     @classmethod
     def from_data(cls, name: str, data: TestData, resolution_hz: float) -> MeasuredTest:
-        """Find the runs, estimate their FRFs and the idle operating point."""
+        """Find the runs, estimate their FRFs and the idle operating point.
+
+        A run that cannot give an FRF is kept in ``unusable`` with the reason:
+        :func:`identification.identify.split_runs` leaves it out of the validation, or refuses
+        if it was to identify. No run with an FRF at all is an error.
+        """
         runs = find_runs(data.test_torque)
         if not runs:
             raise AnalysisError(f"{name}: no chirp in the test torque")
-        estimates = tuple(estimate_frf(data, run, resolution_hz) for run in runs)
+        estimates, unusable = [], []
+        for run in runs:
+            try:
+                estimates.append(estimate_frf(data, run, resolution_hz))
+            except AnalysisError as error:
+                unusable.append((run, str(error)))
+        if not estimates:
+            raise AnalysisError(f"{name}: {unusable[0][1]}")
         torque = data.mean_torque.value[_idle(data.mean_torque.t, runs)]
         speed = data.speed.value[_idle(data.speed.t, runs)]
         if len(torque) < 10:
@@ -63,7 +77,9 @@ class MeasuredTest:
         mean = float(np.mean(torque))
         # stroke-to-stroke differences: the slow idle control cancels, the variation stays
         variation = float(np.std(np.diff(torque)) / np.sqrt(2) / mean) if mean > 0 else 0.0
-        return cls(name, data, estimates, float(np.mean(speed)), mean, variation)
+        return cls(
+            name, data, tuple(estimates), float(np.mean(speed)), mean, variation, tuple(unusable)
+        )
 
     def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
         """The model's repetition of this recording, estimating the runs given by index."""

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import queue
 import threading
 import time
@@ -70,6 +71,22 @@ POLL_MS = 100
 """Longest wait for a message before the loop looks at its sessions again, ms."""
 DRAIN = 2000
 """Most messages taken from the stream before the sessions are advanced."""
+
+
+def leave_a_core_to_the_bus() -> int:
+    """Let the simulator's threads use one core less than numba would, unless the user set
+    ``NUMBA_NUM_THREADS``: the daemon on the same machine must never wait for the search.
+
+    Returns
+    -------
+    int
+        The threads the simulator now uses.
+    """
+    import numba
+
+    if "NUMBA_NUM_THREADS" not in os.environ:
+        numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS - 1))
+    return numba.get_num_threads()
 
 
 def endpoint(address: str, bind: bool = False) -> str:

@@ -101,6 +101,9 @@ class VehicleReport:
         ``request`` (the tool asked for zero or disabled the test) or ``timeout``.
     stalled_at_s
         Bus time at which the engine stalled or ran away (None: it did not).
+    late_max_s, late_at_s
+        Largest delay of a frame behind its bus time, in bus time (the host could not keep
+        the pace: such frames arrive in a burst), s; and the bus time of that frame, s.
     """
 
     bus_time_s: float = 0.0
@@ -112,6 +115,8 @@ class VehicleReport:
     zero_after_s: float | None = None
     zero_cause: str | None = None
     stalled_at_s: float | None = None
+    late_max_s: float = 0.0
+    late_at_s: float | None = None
 
     def as_dict(self) -> dict[str, object]:
         """The report as a JSON-ready dictionary."""
@@ -125,6 +130,8 @@ class VehicleReport:
             "zero_after_s": self.zero_after_s,
             "zero_cause": self.zero_cause,
             "stalled_at_s": self.stalled_at_s,
+            "late_max_s": self.late_max_s,
+            "late_at_s": self.late_at_s,
         }
 
 
@@ -200,12 +207,19 @@ class VirtualVehicle:
             if pending:
                 wake = min(wake, self._due(pending[0]))
             self._receive_until(wake)
-            while pending and self._due(pending[0]) <= time.monotonic():
+            while pending and (due := self._due(pending[0])) <= (sent := time.monotonic()):
+                self._note_lateness(pending[0].timestamp, (sent - due) * self.speedup)
                 self._send(pending.popleft())
         self.report.bus_time_s = self.plant.time_s
         self.report.requests_accepted = self.receiver.accepted
         self.report.requests_dropped = dict(self.receiver.dropped)
         return self.report
+
+    def _note_lateness(self, bus_time_s: float, late_s: float) -> None:
+        """Keep the largest delay of a frame behind its bus time (both bus time, s)."""
+        if late_s > self.report.late_max_s:
+            self.report.late_max_s = late_s
+            self.report.late_at_s = bus_time_s
 
     def _due(self, frame: can.Message) -> float:
         """Monotonic wall time at which a frame stamped with bus time is due."""

@@ -20,6 +20,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator
+from dataclasses import asdict
 from pathlib import Path
 
 import can
@@ -37,6 +38,7 @@ from acquisition.config import (
     TestConfig,
 )
 from acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
+from acquisition.health import HealthCounts
 from acquisition.logfile import read_log
 from acquisition.sequence import ZERO_REQUESTS, ToolFrames
 from acquisition.stream import decode_event
@@ -194,10 +196,15 @@ def make_config(tmp_path: Path, **sections: object) -> AcquisitionConfig:
     return config
 
 
-def run_daemon(config: AcquisitionConfig, ecu: FakeEcu, linger_s: float = 0.0):
+def run_daemon(
+    config: AcquisitionConfig,
+    ecu: FakeEcu,
+    linger_s: float = 0.0,
+    report: Callable[[str], None] = lambda line: None,
+):
     ecu.start()
     try:
-        result = Daemon(config, linger_s=linger_s, wait_s=5.0).run()
+        result = Daemon(config, linger_s=linger_s, wait_s=5.0, report=report).run()
     finally:
         ecu.stop.set()
         ecu.join()
@@ -372,7 +379,8 @@ def test_counter_faults_are_counted(tmp_path: Path) -> None:
     ecu = FakeEcu(config.bus.channel, order=lambda index: faults.get(index, [index]))
     subscriber = Subscriber(config.pipeline)
     subscriber.start()
-    result = run_daemon(config, ecu, linger_s=1.0)
+    lines: list[str] = []
+    result = run_daemon(config, ecu, linger_s=1.0, report=lines.append)
     subscriber.join(10)
     assert result.status == "completed"
     assert subscriber.replayed is not None
@@ -381,6 +389,12 @@ def test_counter_faults_are_counted(tmp_path: Path) -> None:
     # other event) loses stroke 15, repeats stroke 20 and gets stroke 25 in order
     assert (health["lost"], health["duplicated"], health["out_of_order"]) == (3, 3, 2)
     assert health["bad_frames"] == 0
+    # the operator sees the same counts at the end of the test
+    reported = [line for line in lines if line.startswith("health: ")]
+    assert len(reported) == 1
+    counts = json.loads(reported[0].removeprefix("health: "))
+    assert counts == {k: v for k, v in health.items() if k in counts}
+    assert set(counts) == set(asdict(HealthCounts()))
 
 
 def test_bad_frames_are_counted(tmp_path: Path) -> None:

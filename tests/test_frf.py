@@ -28,6 +28,38 @@ def test_runs_found_with_their_chirp_parameters() -> None:
         assert run.f2_hz == pytest.approx(12.0, abs=0.05)
 
 
+def test_holes_in_the_requests_do_not_bend_the_sweep() -> None:
+    """A sender that stalled now and then (100-300 ms without requests, as seen on a busy
+    laptop): the run and its sweep are still found as sent."""
+    plan = TestPlan(amplitudes_nm=(2.0,), f1_hz=1.0, f2_hz=15.0, duration_s=60.0)
+    t = np.arange(0.0, plan.end_s, plan.request_period_s)
+    value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
+    keep = np.ones(len(t), dtype=bool)
+    t0 = plan.chirps[0].start_s
+    for start, length in ((14.0, 0.31), (27.5, 0.17), (41.0, 0.24), (52.3, 0.12), (55.0, 0.3)):
+        keep &= ~((t >= t0 + start) & (t < t0 + start + length))
+    (run,) = find_runs(Series(t[keep], value[keep]))
+    assert run.f1_hz == pytest.approx(1.0, abs=0.05)
+    assert run.f2_hz == pytest.approx(15.0, abs=0.05)
+
+
+def test_bursts_of_a_sender_catching_up_do_not_bend_the_sweep() -> None:
+    """A sender 100 ms late 25 times in a 30 s chirp, each time catching up in a burst of frames
+    1e-4 s apart (the values are the slots', the times the sending's): the sweep is still found
+    as sent. A least-squares line through the bunched crossings had given f1 < 0 on such a log."""
+    plan = TestPlan(amplitudes_nm=(10.0,), f1_hz=1.0, f2_hz=15.0, duration_s=30.0)
+    t = np.arange(0.0, plan.end_s, plan.request_period_s)
+    value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
+    sent = t.copy()
+    t0 = plan.chirps[0].start_s
+    for start in np.random.default_rng(1).uniform(t0 + 1, t0 + 29, 25):
+        late = (t >= start) & (t < start + 0.1)
+        sent[late] = start + 0.1 + 1e-4 * np.arange(late.sum())
+    (run,) = find_runs(Series(sent, value))
+    assert run.f1_hz == pytest.approx(1.0, abs=0.05)
+    assert run.f2_hz == pytest.approx(15.0, abs=0.05)
+
+
 def test_no_runs_without_test_torque() -> None:
     t = np.linspace(0, 10, 1001)
     assert find_runs(Series(t, np.zeros_like(t))) == []
@@ -75,6 +107,22 @@ def test_a_gap_in_the_speed_is_refused() -> None:
     data = _data(20.0, gap_at=10.0)
     with pytest.raises(AnalysisError, match=r"0\.525 s gap"):
         estimate_frf(data, find_runs(data.test_torque)[0])
+
+
+def test_a_run_the_speed_does_not_follow_is_refused() -> None:
+    """Speed and torque that do not follow the test torque (coherence near 0) give no FRF."""
+    data = _data(20.0)
+    noise = np.random.default_rng(0).standard_normal
+    speed, torque = data.speed, data.mean_torque
+    unrelated = TestData(
+        Series(speed.t, 1000 + noise(len(speed))),
+        Series(torque.t, 10 + noise(len(torque))),
+        data.test_torque,
+    )
+    run = find_runs(data.test_torque)[0]
+    assert np.median(estimate_frf(data, run).coherence) > 0.9
+    with pytest.raises(AnalysisError, match=r"median coherence of 0\.0\d"):
+        estimate_frf(unrelated, run)
 
 
 def test_a_band_outside_the_sweep_is_refused() -> None:

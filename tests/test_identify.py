@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
+from dtid.errors import AnalysisError
 from identification.identify import SearchSettings, engine_gain, identify, split_runs
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.start_values import start_theta
+from identification.start_values import start_thetas
 from identification.test_setup import MeasuredTest
-from identification.testdata import from_simulation
+from identification.testdata import TestData, from_simulation
 from simulator.chirp import TestPlan
 from simulator.parameters import DrivetrainParameters
 from simulator.simulate import SimulationOptions, simulate
@@ -31,6 +34,40 @@ def test_operating_point_and_split(softer_dmf: tuple) -> None:
     assert [measured.estimates[i].run.amplitude_nm for i in valid[0]] == pytest.approx([2])
 
 
+def test_a_run_without_an_frf_may_not_identify_but_may_be_left_out_of_the_validation(
+    softer_dmf: tuple[DrivetrainParameters, MeasuredTest], caplog: pytest.LogCaptureFixture
+) -> None:
+    _, measured = softer_dmf
+    by_amplitude = {round(e.run.amplitude_nm): e for e in measured.estimates}
+
+    def without(amplitude: int) -> MeasuredTest:
+        kept = tuple(e for a, e in by_amplitude.items() if a != amplitude)
+        lost = ((by_amplitude[amplitude].run, "frames were lost"),)
+        return dataclasses.replace(measured, estimates=kept, unusable=lost)
+
+    ident, valid = split_runs([without(2)])  # 5 and 10 N*m still identify, nothing validates
+    assert [without(2).estimates[i].run.amplitude_nm for i in ident[0]] == pytest.approx([5, 10])
+    assert valid == [[]]
+    assert "left out of the validation: frames were lost" in caplog.text
+    with pytest.raises(AnalysisError, match=r"10 N\*m run identifies but cannot give an FRF"):
+        split_runs([without(10)])  # not 2 and 5 N*m in its place
+
+
+def test_start_values_are_the_frfs_inertia_and_the_prior_itself(
+    softer_dmf: tuple, reference: DrivetrainParameters, reference_data: TestData
+) -> None:
+    measured = MeasuredTest.from_data("reference", reference_data, 0.25)
+    ident, _ = split_runs([measured])
+    from_frf, prior = start_thetas([measured.estimates[i] for i in ident[0]], reference)
+    assert prior == theta_from_parameters(reference)
+    j_sum = reference.J1 + reference.J2 + reference.J3
+    assert from_frf == {**prior, "J_sum": pytest.approx(j_sum, rel=0.1)}
+    # 30 s chirps leave no bin below 0.3 times the DMF resonance: the prior alone
+    _, short = softer_dmf
+    ident, _ = split_runs([short])
+    assert start_thetas([short.estimates[i] for i in ident[0]], reference) == [prior]
+
+
 def _identify_two(
     reference: DrivetrainParameters,
     truth: DrivetrainParameters,
@@ -43,14 +80,14 @@ def _identify_two(
         reference, measured.idle_torque_nm, engine_gain([measured]), fixed=fixed
     )
     ident, valid = split_runs([measured])
-    start = start_theta([measured.estimates[i] for i in ident[0]], reference)
+    starts = start_thetas([measured.estimates[i] for i in ident[0]], reference)
     return identify(
         [measured],
         par,
         ident,
         valid,
         SearchSettings(popsize=8, generations=12, polish_evaluations=80),
-        start=start,
+        starts=starts,
     )
 
 

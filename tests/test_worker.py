@@ -29,7 +29,7 @@ import pytest
 import zmq
 
 from acquisition.config import AcquisitionConfig, PipelineConfig, TestConfig
-from acquisition.logfile import write_log
+from acquisition.logfile import read_log, write_log
 from acquisition.stream import encode_event, samples_roles
 from dbc.loader import load_interface
 from dtid.cli import main
@@ -247,6 +247,22 @@ def _serve(
     return status[0], messages, worker
 
 
+def _serve_unpaced(
+    events: list[dict[str, Any]], folder: Path
+) -> tuple[int, list[tuple[str, dict[str, Any]]], Worker]:
+    """:func:`_serve` on the events, sent at once; the result goes to ``folder/r.json``."""
+    pipeline = _pipeline(folder)
+    daemon = FakeDaemon(pipeline, events)
+    daemon.go.set()
+    options = WorkerOptions(
+        settings=BUDGET, profile_points=0, json_path=folder / "r.json", plot=False
+    )
+    try:
+        return _serve(pipeline, options)
+    finally:
+        daemon.close()
+
+
 def _without_wall_time(document: dict[str, Any]) -> dict[str, Any]:
     """The document less ``seconds``, the search's wall time (the one key that differs)."""
     return {k: v for k, v in document.items() if k != "seconds"}
@@ -390,8 +406,9 @@ def test_identifies_while_the_validation_chirp_is_recorded(
     assert stages.index("identifying") < stages.index("identified") < stages.index("validated")
     started = next(p for p in progress if p["stage"] == "identifying")
     a2_end, a3_end = session.chirp_ends_s[1], session.chirp_ends_s[2]
-    # started as soon as the data past A2 arrived, long before A3 ended
-    assert a2_end + HOLD_OUT_S <= started["data_s"] < a3_end - 5.0
+    # started once the data past A2 arrived, before A3 ended (A3 lasts 2 s of wall time here, so
+    # no tighter bound holds on a busy machine)
+    assert a2_end + HOLD_OUT_S <= started["data_s"] < a3_end
     assert started["chirps"] == [5.0, 10.0]
     searching = [p["search"] for p in progress if "search" in p]
     assert searching and searching[-1]["stage"] in ("global", "local")
@@ -450,22 +467,31 @@ def test_aborted_in_the_validation_chirp_identifies_without_validation(
     session: SimulatedSession, ipc_dir: Path, offline: dict
 ) -> None:
     events = _aborted(session, session.chirp_ends_s[2] - 8.0)
-    pipeline = _pipeline(ipc_dir)
-    daemon = FakeDaemon(pipeline, events)
-    daemon.go.set()
-    options = WorkerOptions(
-        settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json", plot=False
-    )
-    try:
-        status, messages, worker = _serve(pipeline, options)
-    finally:
-        daemon.close()
+    status, messages, worker = _serve_unpaced(events, ipc_dir)
     assert status == 0 and worker.finished == {"s1": "aborted"}
     (result,) = [d for t, d in messages if t == "result"]
     assert result["nrmse"]["validation"] == {}
     # the identification held A3 out: the parameters are those of the whole log
     assert result["parameters"] == offline["identify"]["parameters"]
     assert result["nrmse"]["fit"] == offline["identify"]["nrmse"]["fit"]
+    assert json.loads((ipc_dir / "r.json").read_text()) == result
+
+
+def test_validation_chirp_with_lost_frames_leaves_the_identification_unvalidated(
+    session: SimulatedSession, ipc_dir: Path, offline: dict
+) -> None:
+    """0.3 s of frames lost inside A3: its FRF is refused, the result stands without validation."""
+    frames = read_log(session.log_path)
+    hole = BASE_S + session.chirp_ends_s[2] - 8.0
+    kept = [f for f in frames if not hole <= f.timestamp < hole + 0.3]
+    events = _events(kept, session.log_path, "s1").events
+    status, messages, worker = _serve_unpaced(events, ipc_dir)
+    assert status == 0 and worker.finished == {"s1": "completed"}
+    errors = [d["message"] for t, d in messages if t == "progress" and d["stage"] == "error"]
+    assert any("frames were lost" in message for message in errors), errors
+    (result,) = [d for t, d in messages if t == "result"]
+    assert result["nrmse"]["validation"] == {}
+    assert result["parameters"] == offline["identify"]["parameters"]
     assert json.loads((ipc_dir / "r.json").read_text()) == result
 
 

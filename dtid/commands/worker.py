@@ -18,7 +18,7 @@ from typing import Any
 
 from acquisition.config import load_config
 from dtid.commands.identify import add_search_options, print_report, search_settings
-from identification.worker import Worker, WorkerOptions
+from identification.worker import Worker, WorkerOptions, leave_a_core_to_the_bus
 from simulator.parameters import load_parameters
 
 
@@ -84,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
         plot_path=args.plot,
         plot=not args.no_plot,
     )
+    leave_a_core_to_the_bus()
     worker = Worker(config.pipeline, options)
     worker.listeners.append(_Terminal())
     stop = threading.Event()
