@@ -8,11 +8,21 @@ solution (continuation): where the others must move far to compensate, as J_sum,
 together in setup 1, a start at the optimum would miss it. The profile is the best objective
 per grid value.
 
-The objective (eq. 17) is a sum of NRMSEs, not a likelihood. Treating the dB residuals as
-Gaussian with a common variance estimated at the optimum, the likelihood-ratio statistic of a
-profile point is N_eff * ln(SSR / SSR_min), SSR = sum_a (NRMSE_a^2 * spread_a^2), with N_eff the
-number of independent frequency bins (Welch bins of a Hann window at half overlap are correlated
-over about ``BIN_CORRELATION`` neighbours). The 95 % confidence interval is where the statistic
+The objective (eq. 17) is a sum of NRMSEs, not a likelihood, and the dB residuals are neither
+of one variance nor independent: near the resonances, where free play and friction act, the
+measured FRF scatters several times more than elsewhere, and neighbouring Welch bins share data.
+A least-squares statistic with one common variance (N ln(SSR/SSR_min)) treats every bin as equally
+informative and made the intervals too narrow: on simulated data the truth fell outside them. The
+statistic here is the sandwich form of the likelihood ratio of an unweighted least-squares fit:
+
+    lambda = (SSR - SSR_min) / (tau * sigma2_eff),
+    sigma2_eff = sum_i dm_i^2 s2_i / sum_i dm_i^2,
+
+with dm the change of the model |G_DRV| (dB) from the profile's minimum, s2_i the local variance
+of the residual at the minimum (a moving mean of its square over ``LOCAL_BINS`` bins each side)
+and tau the residual's correlation length in bins (1 + 2 sum of its autocorrelation up to the
+first negative lag, at least ``BIN_CORRELATION``, the Hann window's own). The noise that counts
+is the noise where the parameter moves the model. The 95 % confidence interval is where lambda
 stays below the chi-square quantile with one degree of freedom (3.84).
 
 Verdicts: ``practical`` when the interval closes on both sides inside the bounds; ``structural``
@@ -38,7 +48,9 @@ CONFIDENCE = 0.95
 THRESHOLD = float(stats.chi2.ppf(CONFIDENCE, df=1))
 """Likelihood-ratio threshold of a 95 % interval for one parameter (3.84)."""
 BIN_CORRELATION = 1.5
-"""Welch bins per independent bin (Hann window, half overlap)."""
+"""Welch bins per independent bin (Hann window, half overlap): the least correlation length."""
+LOCAL_BINS = 5
+"""Bins on each side of a bin over which the local residual variance is averaged."""
 FLAT_RISE = 0.05
 """A profile that climbs less than this (NRMSE units) inside the bounds is flat: the parameter
 is not identifiable, however small the residuals (on clean data the likelihood ratio alone
@@ -103,9 +115,65 @@ class Profile:
         }
 
 
-def statistic(ssr: np.ndarray, ssr_min: float, n_eff: float) -> np.ndarray:
-    """Likelihood-ratio statistic N_eff * ln(SSR / SSR_min) of Gaussian residuals."""
-    return n_eff * np.log(np.maximum(ssr, ssr_min) / ssr_min)
+def statistic(
+    measured_db: Sequence[np.ndarray],
+    best_db: Sequence[np.ndarray],
+    model_db: Sequence[np.ndarray],
+) -> float:
+    """Likelihood-ratio statistic of a model against the profile's minimum (sandwich form).
+
+    Parameters
+    ----------
+    measured_db
+        Measured |G_DRV| per identification run, dB.
+    best_db
+        Model |G_DRV| at the profile's minimum, per run, dB.
+    model_db
+        Model |G_DRV| at the point tested, per run, dB.
+
+    Returns
+    -------
+    float
+        (SSR - SSR_min) / (tau * sigma2_eff), see the module notes; 0 where the model equals the
+        minimum's, infinite where the model could not idle.
+    """
+    if not all(np.isfinite(model).all() for model in model_db):
+        return float("inf")
+    delta_ssr = weighted = change = 0.0
+    lengths, bins = [], []
+    for data, best, model in zip(measured_db, best_db, model_db, strict=True):
+        residual = data - best
+        dm2 = (model - best) ** 2
+        delta_ssr += float(np.sum((data - model) ** 2 - residual**2))
+        weighted += float(np.sum(dm2 * local_variance(residual)))
+        change += float(np.sum(dm2))
+        lengths.append(correlation_length(residual))
+        bins.append(len(residual))
+    if change == 0.0 or weighted == 0.0:
+        return 0.0
+    tau = float(np.average(lengths, weights=bins))
+    return max(delta_ssr, 0.0) / (tau * weighted / change)
+
+
+def local_variance(residual: np.ndarray) -> np.ndarray:
+    """Moving mean of the squared residual over ``LOCAL_BINS`` bins each side, dB^2."""
+    window = np.ones(2 * LOCAL_BINS + 1)
+    return np.convolve(residual**2, window, "same") / np.convolve(
+        np.ones_like(residual), window, "same"
+    )
+
+
+def correlation_length(residual: np.ndarray) -> float:
+    """Bins per independent residual: 1 + 2 * autocorrelation summed up to its first negative lag,
+    at least :data:`BIN_CORRELATION`."""
+    centred = residual - residual.mean()
+    power = float(np.sum(centred**2))
+    if power == 0.0:
+        return BIN_CORRELATION
+    rho = np.correlate(centred, centred, "full")[len(centred) :] / power
+    negative = np.flatnonzero(rho < 0)
+    positive = rho[: negative[0]] if len(negative) else rho
+    return max(BIN_CORRELATION, 1.0 + 2.0 * float(positive.sum()))
 
 
 def _interval_and_verdict(
@@ -203,18 +271,17 @@ def profile(
                 options={"maxfev": polish_evaluations},
             )
             rest = polished.x if polished.fun <= result.fun else result.x
-        value, ssr = _objective_and_ssr(objective, measured_db, fixed(rest[None]))
-        return value, ssr, rest
+        return (*_evaluate(objective, measured_db, fixed(rest[None])), rest)
 
     best_u = float(optimum_unit[k])
-    evaluated = {best_u: _objective_and_ssr(objective, measured_db, optimum_unit[None])}
+    evaluated = {best_u: _evaluate(objective, measured_db, optimum_unit[None])}
     solutions = {best_u: optimum_unit[others]}
 
     def evaluate(u: float) -> None:
         """Profile point at u, started from the nearest point already solved (continuation)."""
         nearest = min(solutions, key=lambda v: abs(v - u))
-        value, ssr, rest = point(u, solutions[nearest])
-        evaluated[u], solutions[u] = (value, ssr), rest
+        value, ssr, curves, rest = point(u, solutions[nearest])
+        evaluated[u], solutions[u] = (value, ssr, curves), rest
 
     grid = np.linspace(0.0, 1.0, points)
     for u in sorted(grid[grid > best_u]):  # outward from the optimum on each side
@@ -223,14 +290,13 @@ def profile(
         evaluate(float(u))
     for u in grid[grid == best_u]:
         evaluate(float(u))
-    n_eff = sum(len(m) for m in measured_db) / BIN_CORRELATION
 
     def stat_of(u: float) -> float:
-        ssr_min = min(ssr for _, ssr in evaluated.values())
-        return float(statistic(np.array(evaluated[u][1]), ssr_min, n_eff))
+        # the profile's own minimum is the reference: where a grid point beat the identified
+        # optimum, the search had not found the global minimum
+        best = min(evaluated, key=lambda v: evaluated[v][1])
+        return statistic(measured_db, evaluated[best][2], evaluated[u][2])
 
-    # the profile's own minimum centres the interval: where a grid point beat the identified
-    # optimum, the search had not found the global minimum
     best_u = min(evaluated, key=lambda u: evaluated[u][1])
     for side in (-1, 1):  # bisect each side's threshold crossing
         for _ in range(refine):
@@ -248,27 +314,26 @@ def profile(
 
     grid_unit = np.array(sorted(evaluated))
     best_objective = np.array([evaluated[u][0] for u in grid_unit])
-    ssr = np.array([evaluated[u][1] for u in grid_unit])
-    stat = statistic(ssr, float(ssr.min()), n_eff)
+    stat = np.array([stat_of(u) for u in grid_unit])
     values = lowest + grid_unit * (highest - lowest)
-    interval, verdict = _interval_and_verdict(values, stat, float(values[np.argmin(ssr)]))
+    minimum = min(evaluated, key=lambda u: evaluated[u][1])
+    interval, verdict = _interval_and_verdict(values, stat, lowest + minimum * (highest - lowest))
     result = Profile(name, values, best_objective, stat, interval, verdict)
     if max(result.rise) < FLAT_RISE:
         return Profile(name, values, best_objective, stat, (None, None), "no")
     return result
 
 
-def _objective_and_ssr(
+def _evaluate(
     objective: Objective, measured_db: Sequence[np.ndarray], unit: np.ndarray
-) -> tuple[float, float]:
-    """Eq. (17) and the sum of squared dB residuals of one normalised parameter set."""
+) -> tuple[float, float, list[np.ndarray]]:
+    """Eq. (17), the sum of squared dB residuals and the model |G_DRV| (dB, per run) of one
+    normalised parameter set."""
     params = objective.parameterization.parameters(unit)
-    total, ssr = 0.0, 0.0
-    measured = iter(measured_db)
-    for test in objective.tests:
-        for model in model_drv_db(params, test):
-            data = next(measured)
-            error = float(nrmse(data, model)[0])
-            total += error
-            ssr += error**2 * float(np.sum((data - data.mean()) ** 2))
-    return total, ssr
+    curves = [model[0] for test in objective.tests for model in model_drv_db(params, test)]
+    total = ssr = 0.0
+    for data, model in zip(measured_db, curves, strict=True):
+        error = float(nrmse(data, model)[0])  # a set that cannot idle gets FAILED_NRMSE
+        total += error
+        ssr += error**2 * float(np.sum((data - data.mean()) ** 2))
+    return total, ssr, curves

@@ -7,7 +7,14 @@ import pytest
 
 from identification.identify import Objective, SearchSettings, engine_gain, identify, split_runs
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.profile import THRESHOLD, _interval_and_verdict, profile
+from identification.profile import (
+    BIN_CORRELATION,
+    LOCAL_BINS,
+    THRESHOLD,
+    _interval_and_verdict,
+    profile,
+    statistic,
+)
 from identification.test_setup import MeasuredTest
 from identification.testdata import from_simulation
 from simulator.chirp import TestPlan
@@ -102,3 +109,33 @@ def test_interval_is_ordered_when_the_minimum_is_off_the_optimum() -> None:
     stat = np.array([9.0, 5.0, 0.0, 1.0, 2.0, 5.0, 9.0])  # minimum at 2
     (lower, upper), verdict = _interval_and_verdict(values, stat, 2.0)
     assert verdict == "practical" and lower < 2.0 < upper
+
+
+def test_statistic_of_white_residuals_is_the_least_squares_ratio() -> None:
+    """Residuals of one variance: lambda = (SSR - SSR_min) / (tau * sigma^2) (tau of white
+    residuals is the Hann window's 1.5)."""
+    rng = np.random.default_rng(0)
+    measured = [rng.standard_normal(4000), rng.standard_normal(4000)]
+    best = [np.zeros(4000), np.zeros(4000)]
+    shifted = [np.full(4000, 0.1), np.zeros(4000)]
+    delta_ssr = sum(np.sum((m - s) ** 2 - m**2) for m, s in zip(measured, shifted, strict=True))
+    expected = delta_ssr / (BIN_CORRELATION * np.mean(measured[0] ** 2))
+    assert statistic(measured, best, shifted) == pytest.approx(expected, rel=0.05)
+    assert statistic(measured, best, best) == 0.0
+
+
+def test_statistic_weighs_the_noise_where_the_model_moves() -> None:
+    """Residuals ten times larger in one band: there, a model change is measured against a
+    variance of 100, elsewhere against 1 (a common variance would take about 50 for both)."""
+    rng = np.random.default_rng(1)
+    sigma = np.where(np.arange(2000) < 1000, 10.0, 1.0)
+    measured = [sigma * rng.standard_normal(2000)]
+    best = [np.zeros(2000)]
+    for band, variance in ((slice(300, 700), 100.0), (slice(1300, 1700), 1.0)):
+        model = np.zeros(2000)
+        model[band] = 5.0 * np.sqrt(variance)
+        delta_ssr = np.sum((measured[0] - model) ** 2 - measured[0] ** 2)
+        expected = delta_ssr / (BIN_CORRELATION * variance)
+        assert statistic(measured, best, [model]) == pytest.approx(expected, rel=0.15)
+    assert 2 * LOCAL_BINS + 1 < 300  # the bands lie further than the window from the step
+    assert statistic(measured, best, [np.full(2000, np.nan)]) == np.inf
