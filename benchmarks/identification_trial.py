@@ -7,17 +7,19 @@ wall time and the number of simulated parameter sets. Not a test: nothing is ass
 
     python benchmarks/identification_trial.py            # the reference vehicle as truth
     python benchmarks/identification_trial.py --truth 1  # a truth drawn within +-40 % (seed 1)
+    python benchmarks/identification_trial.py --truth 1 --profile-points 7  # with intervals
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 
 import numpy as np
 
-from identification.identify import SearchSettings, engine_gain, identify, split_runs
-from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.start_values import start_thetas
+from identification.identify import SearchSettings
+from identification.parameterization import THETA_NAMES, theta_from_parameters
+from identification.pipeline import run_identification
 from identification.test_setup import MeasuredTest
 from identification.testdata import from_simulation
 from simulator.parameters import DrivetrainParameters, reference_parameters
@@ -42,29 +44,45 @@ def main() -> None:
     parser.add_argument("--truth", type=int, default=0, help="0: reference; n: random truth n")
     parser.add_argument("--generations", type=int, default=SearchSettings().generations)
     parser.add_argument("--polish", type=int, default=400, help="Nelder-Mead evaluations")
+    parser.add_argument(
+        "--profile-points", type=int, default=0, help="profile grid points; 0: no intervals"
+    )
     args = parser.parse_args()
 
     truth = draw_truth(args.truth)
     measured = MeasuredTest.from_data(
         "simulated", from_simulation(simulate(truth, seed=100 + args.truth)), 0.25
     )
-    ident, valid = split_runs([measured])
-    prior = reference_parameters()
-    par = Parameterization.around(prior, measured.idle_torque_nm, engine_gain([measured]))
-    starts = start_thetas([measured.estimates[i] for i in ident[0]], prior)
     settings = SearchSettings(generations=args.generations, polish_evaluations=args.polish)
-    result = identify([measured], par, ident, valid, settings, starts=starts)
+    began = time.perf_counter()
+    report = run_identification(
+        [measured], reference_parameters(), settings=settings, profile_points=args.profile_points
+    )
+    result = report.identification
     true_theta = theta_from_parameters(truth)
     print(
-        f"truth {args.truth}: {result.seconds:.1f} s wall, {result.parameter_sets} parameter "
-        f"sets ({result.objective_seconds:.1f} s in the objective)"
+        f"truth {args.truth}: search {result.seconds:.1f} s wall, {result.parameter_sets} "
+        f"parameter sets ({result.objective_seconds:.1f} s in the objective); with profiles "
+        f"{time.perf_counter() - began:.1f} s"
     )
     print(f"fit NRMSE {result.fit_nrmse}, validation NRMSE {result.validation_nrmse}")
     for name in THETA_NAMES:
         error = 100 * (result.theta[name] / true_theta[name] - 1)
-        print(
+        line = (
             f"{name:>6} {result.theta[name]:10.4g} truth {true_theta[name]:10.4g} {error:+6.1f} %"
         )
+        if name in report.profiles:
+            profile = report.profiles[name]
+            lower, upper = profile.interval
+            inside = (lower is None or lower <= true_theta[name]) and (
+                upper is None or true_theta[name] <= upper
+            )
+            line += (
+                f"  [{'-' if lower is None else f'{lower:.4g}'}, "
+                f"{'-' if upper is None else f'{upper:.4g}'}] {profile.verdict:<10} "
+                f"{'holds the truth' if inside else 'MISSES the truth'}"
+            )
+        print(line)
 
 
 if __name__ == "__main__":
