@@ -240,10 +240,11 @@ def estimate_frf(
     welch = _welch_settings(rate, nperseg)
     s_zz, s_yy, s_xx = (signal.welch(v, **welch)[1][keep] for v in (z, y, x))
     coherence = np.minimum(np.abs(s_zy) ** 2 / (s_zz * s_yy), np.abs(s_zx) ** 2 / (s_zz * s_xx))
-    if np.median(coherence) < MIN_MEDIAN_COHERENCE:
+    median_coherence = float(np.median(coherence))
+    if median_coherence < MIN_MEDIAN_COHERENCE:
         raise AnalysisError(
             f"the chirp run at {run.start_s:.1f}-{run.end_s:.1f} s has a median coherence of "
-            f"{np.median(coherence):.2f} over {lo:.2f}-{hi:.2f} Hz (at least "
+            f"{median_coherence:.2f} over {lo:.2f}-{hi:.2f} Hz (at least "
             f"{MIN_MEDIAN_COHERENCE} expected): the speed and torque do not follow the test "
             "torque, so its FRF would be noise; the test was disturbed (a tool that could not "
             "send its requests on time, a driver input, a load switched on), repeat it"

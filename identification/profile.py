@@ -291,13 +291,15 @@ def profile(
     for u in grid[grid == best_u]:
         evaluate(float(u))
 
-    def stat_of(u: float) -> float:
-        # the profile's own minimum is the reference: where a grid point beat the identified
-        # optimum, the search had not found the global minimum
-        best = min(evaluated, key=lambda v: evaluated[v][1])
-        return statistic(measured_db, evaluated[best][2], evaluated[u][2])
+    def minimum() -> float:
+        """The profile's own minimum (least SSR): the statistic's reference and the interval's
+        centre; where a grid point beat the identified optimum, the search had missed it."""
+        return min(evaluated, key=lambda v: evaluated[v][1])
 
-    best_u = min(evaluated, key=lambda u: evaluated[u][1])
+    def stat_of(u: float) -> float:
+        return statistic(measured_db, evaluated[minimum()][2], evaluated[u][2])
+
+    best_u = minimum()
     for side in (-1, 1):  # bisect each side's threshold crossing
         for _ in range(refine):
             us = sorted(u for u in evaluated if (u - best_u) * side > 0)
@@ -316,8 +318,7 @@ def profile(
     best_objective = np.array([evaluated[u][0] for u in grid_unit])
     stat = np.array([stat_of(u) for u in grid_unit])
     values = lowest + grid_unit * (highest - lowest)
-    minimum = min(evaluated, key=lambda u: evaluated[u][1])
-    interval, verdict = _interval_and_verdict(values, stat, lowest + minimum * (highest - lowest))
+    interval, verdict = _interval_and_verdict(values, stat, lowest + minimum() * (highest - lowest))
     result = Profile(name, values, best_objective, stat, interval, verdict)
     if max(result.rise) < FLAT_RISE:
         return Profile(name, values, best_objective, stat, (None, None), "no")
