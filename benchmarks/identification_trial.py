@@ -43,7 +43,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--truth", type=int, default=0, help="0: reference; n: random truth n")
     parser.add_argument("--generations", type=int, default=SearchSettings().generations)
-    parser.add_argument("--polish", type=int, default=400, help="Nelder-Mead evaluations")
+    parser.add_argument(
+        "--polish",
+        type=int,
+        default=SearchSettings().polish_evaluations,
+        help="Nelder-Mead evaluations per polish",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the search")
     parser.add_argument(
         "--profile-points", type=int, default=0, help="profile grid points; 0: no intervals"
     )
@@ -53,7 +59,9 @@ def main() -> None:
     measured = MeasuredTest.from_data(
         "simulated", from_simulation(simulate(truth, seed=100 + args.truth)), 0.25
     )
-    settings = SearchSettings(generations=args.generations, polish_evaluations=args.polish)
+    settings = SearchSettings(
+        generations=args.generations, polish_evaluations=args.polish, seed=args.seed
+    )
     began = time.perf_counter()
     report = run_identification(
         [measured], reference_parameters(), settings=settings, profile_points=args.profile_points

@@ -7,15 +7,25 @@ estimator's own biases (the engine's torque hold, Welch's sweep-rate bias) cance
 
 "The same test signals" is taken literally: the model replays the recording's own test-torque
 requests. Beyond the paper, the model predicts the *expected* response: with DMF free play the
-response near the resonance jump is sensitive to the smallest perturbation (on the reference
-vehicle a set-point 0.04 rpm off moves a single run's NRMSE by 0.08 at 10 N*m, where a 1 % change
-of c12 moves it by 0.012), so one simulated run is as much a random draw as the measured one.
-Each parameter set is therefore simulated in ``realizations``
-runs with the cycle-to-cycle combustion variation measured on the vehicle (the same draws for
-every set, so the objective stays deterministic), and the cross-spectra are averaged over them
-before |G_DRV| is formed, as longer Welch averaging would. Since the state a chirp starts from is
-averaged out too, the replay starts ``SETTLE_S`` before the first estimated run. Many parameter
-sets are simulated in one batched, parallel call.
+response near the resonance jump is sensitive to the smallest perturbation, so one simulated run
+is as much a random draw as the measured one. Each parameter set is therefore simulated in
+``realizations`` runs with the cycle-to-cycle combustion variation measured on the vehicle (the
+same draws for every set, so the objective stays deterministic), and the cross-spectra are
+averaged over them before |G_DRV| is formed, as longer Welch averaging would.
+
+What the draws do not average out is the firing phase. The engine takes the test torque once
+per working stroke, so the chirp reaches the plant sampled at the firing frequency f_s; near
+f_s/3 its alias f_s - f falls on the free play's second harmonic 2f, and how the two add depends
+on where the strokes fall in the chirp's time base. At 1000 rpm and 10 N*m that makes a peak at
+11 Hz that repeats to 0.02 dB from one recording of a vehicle to the next (eight noise seeds of
+the accuracy trial's truth 1), and a replay half a stroke out of phase misses the reference
+vehicle's |G_DRV| there by 1.4-2 dB. The recording tells that phase: its mean torque is
+sampled at the end of every working stroke. Each run is therefore replayed on its own, from the
+stroke end ``SETTLE_S`` before the run, so that the model's strokes fall where the vehicle's did;
+the drift over the run is then set by the idle set-point, which
+:class:`identification.test_setup.MeasuredTest` estimates to about 0.01 rpm. A recording without
+combustion variation is deterministic instead and is replayed whole from its start, which
+reproduces it exactly. Many parameter sets are simulated in one batched, parallel call.
 """
 
 from __future__ import annotations
@@ -35,9 +45,31 @@ from simulator.controller import IdleController
 from simulator.simulate import BatchResult, SimulationOptions, replay_batch
 
 SETTLE_S = 3.0
-"""Idle before the first estimated run in the model's replay, s (the plan's settling time)."""
+"""Idle before each run in the model's replay, s (the plan's settling time)."""
 DEFAULT_REALIZATIONS = 4
 """Runs per parameter set whose cross-spectra are averaged (see the module notes)."""
+
+
+@dataclass(frozen=True)
+class Replay:
+    """One stretch of the recording the model simulates.
+
+    Attributes
+    ----------
+    offset_s
+        Where it starts, s (recording time); simulated time 0.
+    requests
+        The test-torque requests from then on (simulated time, s; N*m).
+    end_s
+        Simulated duration: past its last run, with room for slower speeds, s.
+    runs
+        Indices of the test's estimates it covers.
+    """
+
+    offset_s: float
+    requests: Series
+    end_s: float
+    runs: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -63,6 +95,11 @@ class ModelTest:
     input
         ``"torque"``: |G_DRV| of eq. (14), from the measured mean torque; ``"request"``: from the
         torque request T_ecu, the engine gain K included (setup 1).
+    stroke_ends_s
+        When the recording's working strokes ended (its mean-torque samples), s: each run's
+        replay starts at one of them (see the module notes); empty: ``SETTLE_S`` before the run.
+    replays
+        What is simulated (derived).
     """
 
     requests: Series
@@ -72,9 +109,9 @@ class ModelTest:
     realizations: int = DEFAULT_REALIZATIONS
     seed: int = 0
     input: str = "torque"
+    stroke_ends_s: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     options: SimulationOptions = field(init=False)
-    offset_s: float = field(init=False)
-    replay: Series = field(init=False)
+    replays: tuple[Replay, ...] = field(init=False)
 
     def __post_init__(self) -> None:
         options = SimulationOptions.clean(
@@ -82,20 +119,28 @@ class ModelTest:
             controller=IdleController(setpoint_rpm=self.setpoint_rpm),
         )
         object.__setattr__(self, "options", options)
-        offset = 0.0  # a deterministic replay keeps the whole history: it reproduces a run exactly
-        if self.combustion_variation > 0:
-            offset = max(0.0, min(e.run.start_s for e in self.estimates) - SETTLE_S)
-        keep = self.requests.t >= offset
-        replay = Series(self.requests.t[keep] - offset, self.requests.value[keep])
-        object.__setattr__(self, "offset_s", offset)
-        object.__setattr__(self, "replay", replay)
         if self.combustion_variation == 0:
             object.__setattr__(self, "realizations", 1)
+            replays = (self._replay(0.0, tuple(range(len(self.estimates)))),)
+        else:
+            replays = tuple(
+                self._replay(self._aligned_start(e.run.start_s - SETTLE_S), (i,))
+                for i, e in enumerate(self.estimates)
+            )
+        object.__setattr__(self, "replays", replays)
 
-    @property
-    def end_s(self) -> float:
-        """Simulated time of the replay: past the last run, with room for slower speeds, s."""
-        return max(e.run.end_s + 0.1 * e.run.duration_s for e in self.estimates) - self.offset_s
+    def _aligned_start(self, wanted_s: float) -> float:
+        """The last stroke end at or before ``wanted_s`` (``wanted_s`` itself if none), s."""
+        before = self.stroke_ends_s[self.stroke_ends_s <= wanted_s]
+        return float(before[-1]) if len(before) else max(0.0, wanted_s)
+
+    def _replay(self, offset_s: float, runs: tuple[int, ...]) -> Replay:
+        keep = self.requests.t >= offset_s
+        requests = Series(self.requests.t[keep] - offset_s, self.requests.value[keep])
+        end = max(
+            self.estimates[i].run.end_s + 0.1 * self.estimates[i].run.duration_s for i in runs
+        )
+        return Replay(offset_s, requests, end - offset_s, runs)
 
 
 def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
@@ -116,22 +161,28 @@ def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
         parameter set only.
     """
     n_sets, m = params.shape[0], test.realizations
-    batch = replay_batch(
-        np.repeat(params, m, axis=0),
-        test.replay.t,
-        test.replay.value,
-        np.ones(n_sets * m),
-        test.end_s,
-        test.options,
-        seed=test.seed,
-        streams=np.tile(np.arange(m), n_sets),
-    )
-    return [_run_db(batch, estimate, test, n_sets) for estimate in test.estimates]
+    out: list[np.ndarray] = [np.empty(0)] * len(test.estimates)
+    for replay in test.replays:
+        batch = replay_batch(
+            np.repeat(params, m, axis=0),
+            replay.requests.t,
+            replay.requests.value,
+            np.ones(n_sets * m),
+            replay.end_s,
+            test.options,
+            seed=test.seed,
+            streams=np.tile(np.arange(m), n_sets),
+        )
+        for i in replay.runs:
+            out[i] = _run_db(batch, replay, test.estimates[i], test, n_sets)
+    return out
 
 
-def _run_db(batch: BatchResult, estimate: FrfEstimate, test: ModelTest, n_sets: int) -> np.ndarray:
+def _run_db(
+    batch: BatchResult, replay: Replay, estimate: FrfEstimate, test: ModelTest, n_sets: int
+) -> np.ndarray:
     """|G_DRV| in dB of one run for every parameter set, on the measured grid."""
-    requests, start_s = test.replay, estimate.run.start_s - test.offset_s
+    requests, start_s = replay.requests, estimate.run.start_s - replay.offset_s
     n_jobs, length = len(batch.status), estimate.n_events
     y, x, z = (np.zeros((n_jobs, length)) for _ in range(3))
     from_request = test.input == "request"

@@ -294,6 +294,7 @@ def identify_runs(
     result = identify(tests, par, ident, [[] for _ in tests], settings, progress, starts=starts)
     profiles: dict[str, Profile] = {}
     if profile_points:
+        settings = settings or SearchSettings()
         measured_db = [e.drv_db for e in selection.estimates()]
         objective = Objective(
             par,
@@ -303,13 +304,14 @@ def identify_runs(
         for step, name in enumerate(par.free):
             if progress:
                 progress("profile", step + 1, len(par.free), result.objective)
-            profiles[name] = profile(
-                objective,
+            profiles[name] = profile(  # on the cheaper objectives of the search's stages 1 and 2
+                objective.with_realizations(settings.polish_realizations),
                 measured_db,
                 name,
                 result.unit,
                 points=profile_points,
-                seed=(settings or SearchSettings()).seed,
+                seed=settings.seed,
+                search_objective=objective.with_realizations(settings.global_realizations),
             )
     return IdentificationReport(
         result, profiles, {**fixed, **operating}, gain, t_loss, fit=selection

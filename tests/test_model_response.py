@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from identification.frf import estimate_frf
-from identification.model_response import ModelTest, model_drv_db
+from identification.model_response import SETTLE_S, ModelTest, model_drv_db
 from identification.objective import FAILED_NRMSE, nrmse, summed_nrmse
 from identification.parameterization import (
     THETA_NAMES,
@@ -15,7 +17,8 @@ from identification.parameterization import (
     theta_to_arrays,
 )
 from identification.runs import find_runs
-from identification.testdata import from_simulation
+from identification.test_setup import MeasuredTest
+from identification.testdata import TestData, from_simulation
 from simulator.chirp import TestPlan
 from simulator.parameters import DrivetrainParameters
 from simulator.simulate import SimulationOptions, simulate
@@ -82,3 +85,42 @@ def test_a_set_that_cannot_idle_gets_nan(reference: DrivetrainParameters) -> Non
     stalling = reference.replace(T_loss=3000.0).as_array()
     db = model_drv_db(np.stack([reference.as_array(), stalling]), test)[0]
     assert np.isfinite(db[0]).all() and np.isnan(db[1]).all()
+
+
+@pytest.fixture(scope="module")
+def reference_measured(reference_data: TestData) -> MeasuredTest:
+    return MeasuredTest.from_data("reference", reference_data, 0.25)
+
+
+def test_set_point_is_the_speeds_time_mean(reference_measured: MeasuredTest) -> None:
+    """The controller's integral makes the speed's time mean its set-point, chirps included."""
+    assert reference_measured.setpoint_rpm == pytest.approx(1000.0, abs=0.02)
+
+
+def test_each_run_is_replayed_from_a_stroke_end_before_it(
+    reference_measured: MeasuredTest,
+) -> None:
+    test = reference_measured.model_test([1, 2])
+    stroke_ends = reference_measured.data.mean_torque.t
+    assert [r.runs for r in test.replays] == [(0,), (1,)]
+    for replay, estimate in zip(test.replays, test.estimates, strict=True):
+        wanted = estimate.run.start_s - SETTLE_S
+        assert replay.offset_s in stroke_ends
+        assert wanted - 0.035 < replay.offset_s <= wanted  # a stroke lasts 30 ms at 1000 rpm
+        assert replay.requests.t[0] >= 0.0
+
+
+def test_the_recordings_firing_phase_is_reproduced(
+    reference: DrivetrainParameters, reference_measured: MeasuredTest
+) -> None:
+    """At 10 N*m the stroke-sampled chirp's alias meets the free play's harmonic near f_s/3
+    (11 Hz at 1000 rpm): replayed in phase with the recording's strokes the model at the truth
+    follows the measured peak, half a stroke out of phase it misses it by over a decibel."""
+    test = reference_measured.model_test([2])
+    measured = reference_measured.estimates[2].drv_db
+    in_phase = model_drv_db(reference.as_array()[None], test)[0][0]
+    stroke_ends = reference_measured.data.mean_torque.t
+    shifted = dataclasses.replace(test, stroke_ends_s=stroke_ends + 0.5 * np.diff(stroke_ends)[0])
+    out_of_phase = model_drv_db(reference.as_array()[None], shifted)[0][0]
+    assert np.abs(in_phase - measured).max() < 0.6
+    assert np.abs(out_of_phase - measured).max() > 1.0
