@@ -73,6 +73,10 @@ def main() -> None:
         f"parameter sets ({result.objective_seconds:.1f} s in the objective); with profiles "
         f"{time.perf_counter() - began:.1f} s"
     )
+    print(
+        "stages: "
+        + ", ".join(f"{k} {n} sets in {sec:.1f} s" for k, (n, sec) in result.stages.items())
+    )
     print(f"fit NRMSE {result.fit_nrmse}, validation NRMSE {result.validation_nrmse}")
     for name in THETA_NAMES:
         error = 100 * (result.theta[name] / true_theta[name] - 1)

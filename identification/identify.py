@@ -131,6 +131,9 @@ class Identification:
         Parameter sets simulated.
     seconds
         Wall time of the search, s, and the share spent in the objective.
+    stages
+        Per search stage (``global``, ``polish``, ``final``): parameter sets simulated and
+        seconds spent in the objective.
     """
 
     parameters: DrivetrainParameters
@@ -142,6 +145,7 @@ class Identification:
     seconds: float
     objective_seconds: float
     unit: np.ndarray = field(repr=False)
+    stages: dict[str, tuple[int, float]] = field(default_factory=dict)
 
 
 def engine_gain(tests: Sequence[MeasuredTest]) -> float:
@@ -274,6 +278,10 @@ def identify(
         seconds=time.perf_counter() - began,
         objective_seconds=sum(stage.seconds for stage in stages),
         unit=best,
+        stages={
+            name: (stage.parameter_sets, stage.seconds)
+            for name, stage in zip(("global", "polish", "final"), stages, strict=True)
+        },
     )
 
 

@@ -19,6 +19,8 @@ GAP_INTERVALS = 1.5
 """A spacing of at least this many sample intervals before a burst is a gap."""
 BURST_INTERVALS = 0.5
 """Samples closer than this many sample intervals belong to one burst."""
+LOCAL_SPACINGS = 64
+"""A burst's slots are cut with the median of this many spacings before its gap."""
 
 
 @dataclass(frozen=True)
@@ -47,14 +49,18 @@ def retime_late_bursts(times: np.ndarray, interval_s: float | None = None) -> Re
     before, right after a gap of at least :data:`GAP_INTERVALS` intervals. The span from the
     sample before the gap to the first sample after the burst is cut into whole intervals; the
     burst's samples take its last slots, in order, evenly spaced. A burst with more samples than
-    the span has slots is left alone (no crank-synchronous timing explains it).
+    the span has slots is left alone (no crank-synchronous timing explains it). The slots' width
+    is the median of the :data:`LOCAL_SPACINGS` spacings before the gap: the engine's own interval
+    there, which later data cannot change (the live worker re-times a log still being written
+    and must get the times ``dtid identify`` gets from the whole log).
 
     Parameters
     ----------
     times
         Receive times of one crank-synchronous signal, s, non-decreasing.
     interval_s
-        The signal's sample interval, s; the median spacing when omitted.
+        The signal's sample interval, s; when omitted, the median spacing finds the gaps and
+        bursts and the local median before each gap cuts its slots.
 
     Returns
     -------
@@ -77,10 +83,13 @@ def retime_late_bursts(times: np.ndarray, interval_s: float | None = None) -> Re
         n_burst = last - first + 1
         if n_burst < 2:
             continue  # one late sample is jitter, or a loss; nothing to re-time
-        # the first sample after the burst, or one interval after it when that one is late too
-        anchor = min(t[last + 1], t[last] + interval) if last + 1 < len(t) else t[last] + interval
+        slot = interval
+        if interval_s is None:
+            slot = float(np.median(spacing[max(0, gap - LOCAL_SPACINGS) : gap])) if gap else slot
+        # the first sample after the burst, or one slot after it when that one is late too
+        anchor = min(t[last + 1], t[last] + slot) if last + 1 < len(t) else t[last] + slot
         start = t[gap]
-        n_slots = round((anchor - start) / interval) - 1
+        n_slots = round((anchor - start) / slot) - 1
         if n_burst > n_slots:
             continue
         step = (anchor - start) / (n_slots + 1)

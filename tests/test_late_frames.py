@@ -118,3 +118,14 @@ def test_a_stalled_vehicle_gives_the_frf_of_an_even_one(
     coherent = a.coherence > 0.9
     assert np.count_nonzero(coherent) > 10
     np.testing.assert_allclose(b.drv_db[coherent], a.drv_db[coherent], atol=0.3)
+
+
+def test_a_burst_is_retimed_alike_in_a_log_still_being_written() -> None:
+    """The live worker re-times the samples received so far; `dtid identify` the whole log.
+    Bit for bit the same times, or the two searches part ways."""
+    truth = engine_times(2000, seed=4)
+    late = stall(truth, truth[300], 0.1)
+    whole = retime_late_bursts(late).times
+    so_far = retime_late_bursts(late[:700]).times
+    assert retime_late_bursts(late).n_moved > 0
+    np.testing.assert_array_equal(so_far[:600], whole[:600])
