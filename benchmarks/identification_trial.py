@@ -74,7 +74,7 @@ def main() -> None:
         f"{time.perf_counter() - began:.1f} s"
     )
     print(
-        "stages: "
+        f"stroke lag {1000 * result.stroke_lag_s:.1f} ms; stages: "
         + ", ".join(f"{k} {n} sets in {sec:.1f} s" for k, (n, sec) in result.stages.items())
     )
     print(f"fit NRMSE {result.fit_nrmse}, validation NRMSE {result.validation_nrmse}")

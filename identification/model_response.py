@@ -98,6 +98,12 @@ class ModelTest:
     stroke_ends_s
         When the recording's working strokes ended (its mean-torque samples), s: each run's
         replay starts at one of them (see the module notes); empty: ``SETTLE_S`` before the run.
+    stroke_lag_s
+        How much later a stroke's end is stamped in the recording than a logged request that
+        took effect with it, s: the vehicle's frames and the tool's requests both travel (over
+        a real bus and through the virtual vehicle's 5 ms steps alike), and the replay starts
+        this much before the stamped stroke end. The identification estimates it
+        (:func:`identification.identify.stroke_lag`).
     replays
         What is simulated (derived).
     """
@@ -110,6 +116,7 @@ class ModelTest:
     seed: int = 0
     input: str = "torque"
     stroke_ends_s: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    stroke_lag_s: float = 0.0
     options: SimulationOptions = field(init=False)
     replays: tuple[Replay, ...] = field(init=False)
 
@@ -130,8 +137,10 @@ class ModelTest:
         object.__setattr__(self, "replays", replays)
 
     def _aligned_start(self, wanted_s: float) -> float:
-        """The last stroke end at or before ``wanted_s`` (``wanted_s`` itself if none), s."""
-        before = self.stroke_ends_s[self.stroke_ends_s <= wanted_s]
+        """The last stroke end (less the lag) at or before ``wanted_s`` (``wanted_s`` itself if
+        none), s."""
+        starts = self.stroke_ends_s - self.stroke_lag_s
+        before = starts[starts <= wanted_s]
         return float(before[-1]) if len(before) else max(0.0, wanted_s)
 
     def _replay(self, offset_s: float, runs: tuple[int, ...]) -> Replay:

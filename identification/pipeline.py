@@ -171,9 +171,10 @@ class IdentificationReport:
     def validated(self, selection: RunSelection) -> IdentificationReport:
         """The report with the validation NRMSE of the identified parameters on these runs."""
         params = self.identification.parameters.as_array()[None]
+        lag = self.identification.stroke_lag_s
         scores = {}
         for test, runs in zip(selection.tests, selection.runs, strict=True):
-            model = model_drv_db(params, test.model_test(runs))
+            model = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
             for i, db in zip(runs, model, strict=True):
                 label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
                 scores[label] = float(nrmse(test.estimates[i].drv_db, db)[0])
@@ -183,12 +184,14 @@ class IdentificationReport:
     def fit_curves(self) -> tuple[list[FrfEstimate], list[np.ndarray], list[str]]:
         """Measured FRFs, the identified model's |G_DRV| (dB) and the role of each run (Fig. 6)."""
         params = self.identification.parameters.as_array()[None]
+        lag = self.identification.stroke_lag_s
         measured, model, roles = [], [], []
         for role, selection in (("fit", self.fit), ("validation", self.validation)):
             if selection is None:
                 continue
             for test, runs in zip(selection.tests, selection.runs, strict=True):
-                for i, db in zip(runs, model_drv_db(params, test.model_test(runs)), strict=True):
+                curves = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
+                for i, db in zip(runs, curves, strict=True):
                     measured.append(test.estimates[i])
                     model.append(db[0])
                     roles.append(role)
@@ -298,7 +301,10 @@ def identify_runs(
         measured_db = [e.drv_db for e in selection.estimates()]
         objective = Objective(
             par,
-            [t.model_test(runs) for t, runs in zip(tests, ident, strict=True)],
+            [
+                t.model_test(runs, stroke_lag_s=result.stroke_lag_s)
+                for t, runs in zip(tests, ident, strict=True)
+            ],
             [[t.estimates[i].drv_db for i in runs] for t, runs in zip(tests, ident, strict=True)],
         )
         for step, name in enumerate(par.free):

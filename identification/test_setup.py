@@ -94,8 +94,11 @@ class MeasuredTest:
             tuple(unusable),
         )
 
-    def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
-        """The model's repetition of this recording, estimating the runs given by index."""
+    def model_test(
+        self, indices: Sequence[int], realizations: int | None = None, stroke_lag_s: float = 0.0
+    ) -> ModelTest:
+        """The model's repetition of this recording, estimating the runs given by index (see
+        :class:`identification.model_response.ModelTest` for the lag)."""
         extra = {} if realizations is None else {"realizations": realizations}
         return ModelTest(
             requests=self.data.test_torque,
@@ -103,6 +106,7 @@ class MeasuredTest:
             setpoint_rpm=self.setpoint_rpm,
             combustion_variation=self.combustion_variation,
             stroke_ends_s=self.data.mean_torque.t,
+            stroke_lag_s=stroke_lag_s,
             **extra,
         )
 
