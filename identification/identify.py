@@ -106,15 +106,11 @@ class Objective:
         self.seconds += time.perf_counter() - start
         return total
 
-    def with_realizations(self, realizations: int) -> Objective:
-        """The same objective with fewer (cheaper) or more realizations per parameter set."""
-        tests = [dataclasses.replace(t, realizations=realizations) for t in self.tests]
-        return Objective(self.parameterization, tests, self.measured_db)
-
-    def with_lag(self, lag_s: float) -> Objective:
-        """The same objective with the replays started ``lag_s`` before the stamped stroke ends
-        (:attr:`identification.model_response.ModelTest.stroke_lag_s`)."""
-        tests = [dataclasses.replace(t, stroke_lag_s=lag_s) for t in self.tests]
+    def replacing(self, **changes: object) -> Objective:
+        """The same objective with its tests changed, for example ``realizations`` (fewer are
+        cheaper) or ``stroke_lag_s`` (:class:`identification.model_response.ModelTest`); the
+        counters start at zero."""
+        tests = [dataclasses.replace(t, **changes) for t in self.tests]
         return Objective(self.parameterization, tests, self.measured_db)
 
 
@@ -147,7 +143,7 @@ def stroke_lag(objective: Objective, unit: np.ndarray) -> float:
     lags = float(np.median(periods)) * np.arange(LAG_STEPS) / LAG_STEPS
     values = []
     for lag in lags:
-        lagged = objective.with_lag(float(lag))
+        lagged = objective.replacing(stroke_lag_s=float(lag))
         values.append(lagged(unit[None])[0])
         objective.calls += lagged.calls
         objective.parameter_sets += lagged.parameter_sets
@@ -297,10 +293,10 @@ def identify(
         start = np.clip(parameterization.unit(theta)[0], 0.0, 1.0)
     lag_tally = objective  # counts the evaluations that choose the lag
     lag = stroke_lag(lag_tally, start)
-    objective = objective.with_lag(lag)
+    objective = objective.replacing(stroke_lag_s=lag)
     stages = [
-        objective.with_realizations(settings.global_realizations),
-        objective.with_realizations(settings.polish_realizations),
+        objective.replacing(realizations=settings.global_realizations),
+        objective.replacing(realizations=settings.polish_realizations),
     ]
     if n_free == 0:
         best = np.zeros(0)
@@ -312,7 +308,7 @@ def identify(
         ]
         best = min(polished, key=lambda p: p[1])[0]
         lag = stroke_lag(lag_tally, best)  # again, nearer the optimum
-        objective = objective.with_lag(lag)
+        objective = objective.replacing(stroke_lag_s=lag)
         best = _polish(
             objective,
             best,

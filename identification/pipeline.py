@@ -311,13 +311,13 @@ def identify_runs(
             if progress:
                 progress("profile", step + 1, len(par.free), result.objective)
             profiles[name] = profile(  # on the cheaper objectives of the search's stages 1 and 2
-                objective.with_realizations(settings.polish_realizations),
+                objective.replacing(realizations=settings.polish_realizations),
                 measured_db,
                 name,
                 result.unit,
                 points=profile_points,
                 seed=settings.seed,
-                search_objective=objective.with_realizations(settings.global_realizations),
+                search_objective=objective.replacing(realizations=settings.global_realizations),
             )
     return IdentificationReport(
         result, profiles, {**fixed, **operating}, gain, t_loss, fit=selection

@@ -166,5 +166,5 @@ def test_the_stroke_stamps_lag_is_found(
     objective = Objective(par, [late], drv)
     lag = stroke_lag(objective, truth)
     assert off_by(lag, 0.5 * period) <= 0.25 * period
-    found = objective.with_lag(lag)(truth[None])[0]
+    found = objective.replacing(stroke_lag_s=lag)(truth[None])[0]
     assert objective(truth[None])[0] > 1.3 * found
