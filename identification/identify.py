@@ -125,7 +125,7 @@ def stroke_lag(objective: Objective, unit: np.ndarray) -> float:
     stroke's end when its frame arrives, later than it happened by a latency no log records;
     so :data:`LAG_STEPS` lags across one stroke period (the median spacing of the stroke ends)
     are tried and the best kept. The fit is good over about a third of the stroke and poor over
-    the rest (at the truth of a simulated recording, exactly stamped: 0.073-0.083 from -7.5 to
+    the rest (at the truth of a simulated recording, exactly stamped: 0.073-0.083 from -12.5 to
     +5 ms, 0.12-0.13 from 7.5 to 15 ms); over the virtual vehicle's bus, the first log the
     lag was tried on, the objective at the truth fell from 0.257 with no lag to 0.18.
 

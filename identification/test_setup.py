@@ -38,7 +38,8 @@ class MeasuredTest:
         included (0.01 rpm on a simulated 192 s test); the idle samples alone, a few seconds
         between the chirps, scatter by 0.2 rpm, and their plain mean is biased by the events'
         bunching at higher speeds. The model needs it that closely: 0.1 rpm drifts the firing
-        phase by 0.15 stroke over a 60 s run (see :mod:`identification.model_response`).
+        phase by 0.2 stroke (6 ms at 1000 rpm) over a 60 s run (see
+        :mod:`identification.model_response`).
     idle_torque_nm
         Mean measured torque at idle outside the chirps, N*m: the loss torque T_loss.
     combustion_variation
