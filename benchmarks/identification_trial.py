@@ -13,6 +13,7 @@ wall time and the number of simulated parameter sets. Not a test: nothing is ass
 from __future__ import annotations
 
 import argparse
+import json
 import time
 
 import numpy as np
@@ -49,10 +50,17 @@ def main() -> None:
         default=SearchSettings().polish_evaluations,
         help="Nelder-Mead evaluations per polish",
     )
+    parser.add_argument(
+        "--newton",
+        type=int,
+        default=SearchSettings().newton_iterations,
+        help="most Levenberg-Marquardt steps",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the search")
     parser.add_argument(
         "--profile-points", type=int, default=0, help="profile grid points; 0: no intervals"
     )
+    parser.add_argument("--json", help="write the profiles (values, statistic, margin) here")
     args = parser.parse_args()
 
     truth = draw_truth(args.truth)
@@ -60,7 +68,10 @@ def main() -> None:
         "simulated", from_simulation(simulate(truth, seed=100 + args.truth)), 0.25
     )
     settings = SearchSettings(
-        generations=args.generations, polish_evaluations=args.polish, seed=args.seed
+        generations=args.generations,
+        polish_evaluations=args.polish,
+        newton_iterations=args.newton,
+        seed=args.seed,
     )
     began = time.perf_counter()
     report = run_identification(
@@ -95,6 +106,9 @@ def main() -> None:
                 f"{'holds the truth' if inside else 'MISSES the truth'}"
             )
         print(line)
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as out:
+            json.dump({name: prof.as_dict() for name, prof in report.profiles.items()}, out)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 K is taken first from |G_ENG| (eq. 24) and T_loss from the mean torque at idle; both are then
 held. The ten setup-4 parameters (or the free subset) are searched in their normalised [0, 1]
-box in three stages, each on a more exact and dearer objective (the model's realizations, see
+box in four stages, each on a more exact and dearer objective (the model's realizations, see
 :mod:`identification.model_response`):
 
 1. differential evolution over the batched simulator (a whole population is one parallel
@@ -12,9 +12,13 @@ box in three stages, each on a more exact and dearer objective (the model's real
 3. Nelder-Mead from the best of those, with a small simplex, on the full objective: fewer
    realizations leave more noise in the model's cross-spectra, which biases its |G_DRV|, so the
    cheaper objectives' minima lie a little apart (on the accuracy trial's truth 4, the gear
-   play's by 0.06 of its box on one realization, 0.02 on two).
+   play's by 0.06 of its box on one realization, 0.02 on two);
+4. Levenberg-Marquardt steps on the full objective, from a Jacobian whose differences are sized
+   above the model's Monte Carlo jitter (:mod:`identification.sensitivity`): Nelder-Mead
+   crawls along the shallow, coupled directions of the dampings and the friction, where the
+   jitter of the objective is as large as its slope, and stops short of the minimum.
 
-Nelder-Mead only ever accepts improvements (the objective is not smooth: free play and friction
+Every stage only ever accepts improvements (the objective is not smooth: free play and friction
 make it piecewise). Everything is seeded, so a run is reproducible.
 """
 
@@ -33,6 +37,7 @@ from dtid.errors import AnalysisError
 from identification.model_response import ModelTest, model_drv_db
 from identification.objective import nrmse, summed_nrmse
 from identification.parameterization import THETA_NAMES, Parameterization
+from identification.sensitivity import jacobian
 from identification.test_setup import MeasuredTest
 from simulator.parameters import DrivetrainParameters
 
@@ -65,7 +70,10 @@ class SearchSettings:
     polish_step, final_step
         Initial simplex size of the polishes of stages 2 and 3, in normalised units.
     global_realizations, polish_realizations
-        Realizations per parameter set in stages 1 and 2 (stage 3 uses the recordings' own).
+        Realizations per parameter set in stages 1 and 2 (stages 3 and 4 use the recordings'
+        own).
+    newton_iterations
+        Most Levenberg-Marquardt steps of stage 4.
     seed
         Seed of the search.
     """
@@ -80,6 +88,7 @@ class SearchSettings:
     final_step: float = 0.01
     global_realizations: int = 1
     polish_realizations: int = 2
+    newton_iterations: int = 4
     seed: int = 0
 
 
@@ -105,6 +114,27 @@ class Objective:
         self.parameter_sets += params.shape[0]
         self.seconds += time.perf_counter() - start
         return total
+
+    def residuals(self, unit: np.ndarray) -> np.ndarray:
+        """Weighted residuals behind eq. (17) of each row of normalised free values.
+
+        Returns
+        -------
+        numpy.ndarray
+            (n, bins): model minus measured |G_DRV|, dB, each run's bins divided by the run's
+            measured spread (the NRMSE's denominator), runs in order; NaN where the model could
+            not idle. Each run's NRMSE is the norm of its part.
+        """
+        start = time.perf_counter()
+        params = self.parameterization.parameters(np.atleast_2d(unit))
+        columns = []
+        for test, measured in zip(self.tests, self.measured_db, strict=True):
+            for model, data in zip(model_drv_db(params, test), measured, strict=True):
+                columns.append((model - data) / np.linalg.norm(data - data.mean()))
+            self.calls += 1
+        self.parameter_sets += params.shape[0]
+        self.seconds += time.perf_counter() - start
+        return np.hstack(columns)
 
     def replacing(self, **changes: object) -> Objective:
         """The same objective with its tests changed, for example ``realizations`` (fewer are
@@ -174,8 +204,8 @@ class Identification:
         The lag of the recordings' stamped stroke ends the model replays with
         (:func:`stroke_lag`), s.
     stages
-        Per search stage (``global``, ``polish``, ``final``, and ``lag`` for the choice of the
-        lag): parameter sets simulated and seconds spent in the objective.
+        Per search stage (``global``, ``polish``, ``final``, ``newton``, and ``lag`` for the
+        choice of the lag): parameter sets simulated and seconds spent in the objective.
     """
 
     parameters: DrivetrainParameters
@@ -294,29 +324,33 @@ def identify(
     lag_tally = objective  # counts the evaluations that choose the lag
     lag = stroke_lag(lag_tally, start)
     objective = objective.replacing(stroke_lag_s=lag)
-    stages = [
-        objective.replacing(realizations=settings.global_realizations),
-        objective.replacing(realizations=settings.polish_realizations),
-    ]
+    stages = {
+        "global": objective.replacing(realizations=settings.global_realizations),
+        "polish": objective.replacing(realizations=settings.polish_realizations),
+    }
     if n_free == 0:
         best = np.zeros(0)
     else:
-        population = _global_search(stages[0], n_free, settings, progress, starts)
+        population = _global_search(stages["global"], n_free, settings, progress, starts)
+        step = settings.polish_step
         polished = [
-            _polish(stages[1], member, settings.polish_evaluations, settings.polish_step, progress)
+            _polish(stages["polish"], member, settings.polish_evaluations, step, progress)
             for member in _apart(population, settings.polish_starts, settings.start_distance)
         ]
         best = min(polished, key=lambda p: p[1])[0]
         lag = stroke_lag(lag_tally, best)  # again, nearer the optimum
         objective = objective.replacing(stroke_lag_s=lag)
-        best = _polish(
+        best, value = _polish(
             objective,
             best,
             min(settings.final_evaluations, settings.polish_evaluations),
             settings.final_step,
             progress,
-        )[0]
-    stages += [objective, lag_tally]
+        )
+        stages["final"], stages["newton"] = objective, objective.replacing()
+        best = _levenberg_marquardt(stages["newton"], best, value, settings.newton_iterations)
+    stages.setdefault("final", objective)
+    stages["lag"] = lag_tally
     params = parameterization.parameters(best[None])
     fit = _nrmse_by_run(tests, identify_runs, params, lag)
     validation = _nrmse_by_run(tests, validate_runs, params, lag)
@@ -327,15 +361,12 @@ def identify(
         fit_nrmse=fit,
         validation_nrmse=validation,
         objective=float(sum(fit.values())),
-        parameter_sets=sum(stage.parameter_sets for stage in stages),
+        parameter_sets=sum(stage.parameter_sets for stage in stages.values()),
         seconds=time.perf_counter() - began,
-        objective_seconds=sum(stage.seconds for stage in stages),
+        objective_seconds=sum(stage.seconds for stage in stages.values()),
         unit=best,
         stroke_lag_s=lag,
-        stages={
-            name: (stage.parameter_sets, stage.seconds)
-            for name, stage in zip(("global", "polish", "final", "lag"), stages, strict=True)
-        },
+        stages={name: (stage.parameter_sets, stage.seconds) for name, stage in stages.items()},
     )
 
 
@@ -424,6 +455,50 @@ def _polish(
         },
     )
     return result.x, float(result.fun)
+
+
+LM_DAMPINGS = (0.01, 0.1, 1.0, 10.0)
+"""Levenberg-Marquardt dampings tried at each step, relative to the diagonal of J^T J."""
+
+
+def _levenberg_marquardt(
+    objective: Objective, start: np.ndarray, value: float, iterations: int
+) -> np.ndarray:
+    """Stage 4: Levenberg-Marquardt steps on eq. (17)'s weighted residuals.
+
+    Each step takes the Jacobian with sized differences (:func:`identification.sensitivity.
+    jacobian`), solves for the steps of all :data:`LM_DAMPINGS` and evaluates them in one batch;
+    the best is kept if it lowers eq. (17), else the search ends. Nelder-Mead crawls along the
+    shallow, coupled directions of the dampings and the friction; this step crosses them.
+
+    Parameters
+    ----------
+    objective
+        Eq. (17); its counters take the evaluations.
+    start, value
+        Where to start (normalised free values) and eq. (17) there.
+    iterations
+        Most steps.
+    """
+    best = start
+    for _ in range(iterations):
+        jac, residual = jacobian(objective, best)
+        if not (np.isfinite(jac).all() and np.isfinite(residual).all()):
+            break
+        normal = jac.T @ jac
+        gradient = jac.T @ residual
+        scale = np.diag(np.diag(normal)) + 1e-12 * np.eye(len(best))
+        candidates = np.array(
+            [
+                np.clip(best - np.linalg.solve(normal + damping * scale, gradient), 0.0, 1.0)
+                for damping in LM_DAMPINGS
+            ]
+        )
+        values = objective(candidates)
+        if values.min() >= value:
+            break
+        best, value = candidates[int(np.argmin(values))], float(values.min())
+    return best
 
 
 def _nrmse_by_run(

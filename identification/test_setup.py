@@ -45,7 +45,7 @@ class MeasuredTest:
     combustion_variation
         Relative standard deviation of the idle torque from stroke to stroke: the cycle-to-cycle
         variation the model engine repeats (it includes the torque sensor's noise, so it errs
-        high; zero for a clean simulated recording).
+        high; about 1e-4 for a clean simulated recording, the idle control's own changes).
     """
 
     name: str

@@ -102,6 +102,7 @@ def test_interval_contains_the_truth_on_noisy_data(reference: DrivetrainParamete
     lower, upper = stiffness.interval
     assert stiffness.verdict == "practical"
     assert lower < truth.c12 < upper
+    assert np.count_nonzero(stiffness.margin) == len(stiffness.values) - 1  # all but the minimum
 
 
 def test_interval_is_ordered_when_the_minimum_is_off_the_optimum() -> None:

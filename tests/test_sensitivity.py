@@ -1,0 +1,82 @@
+"""Sensitivities, the valley they predict, and the Levenberg-Marquardt stage, on a linear plant.
+
+Without free play, friction and combustion variation the model is smooth and deterministic, so
+its derivatives are well defined and independent finite differences must agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from identification.identify import (
+    Objective,
+    _levenberg_marquardt,
+    engine_gain,
+    split_runs,
+)
+from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
+from identification.sensitivity import compensation, jacobian
+from identification.test_setup import MeasuredTest
+from identification.testdata import from_simulation
+from simulator.chirp import TestPlan
+from simulator.parameters import DrivetrainParameters
+from simulator.simulate import SimulationOptions, simulate
+
+FREE = ("J_sum", "x12", "c12", "c23", "d12")
+
+
+@pytest.fixture(scope="module")
+def linear(reference: DrivetrainParameters) -> tuple[Objective, np.ndarray]:
+    """Eq. (17) of a clean linear recording with five free parameters, and the truth's units."""
+    truth = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    measured = MeasuredTest.from_data(
+        "linear", from_simulation(simulate(truth, plan, SimulationOptions.clean())), 0.25
+    )
+    theta = theta_from_parameters(truth)
+    fixed = {n: theta[n] for n in THETA_NAMES if n not in FREE}
+    par = Parameterization.around(truth, measured.idle_torque_nm, engine_gain([measured]), fixed)
+    ident, _ = split_runs([measured])
+    test = measured.model_test(ident[0], realizations=1)
+    objective = Objective(par, [test], [[measured.estimates[i].drv_db for i in ident[0]]])
+    return objective, par.unit(np.array([[theta[n] for n in THETA_NAMES]]))[0]
+
+
+def test_jacobian_agrees_with_a_plain_difference(linear: tuple) -> None:
+    """The sized central differences against forward differences of another step."""
+    objective, truth = linear
+    jac, residual = jacobian(objective, truth)
+    assert np.linalg.norm(residual) < 0.05  # the truth fits its own clean recording
+    step = 0.004
+    moved = objective.residuals(truth + step * np.eye(len(FREE)))
+    plain = (moved - residual).T / step
+    for k, name in enumerate(FREE):
+        error = np.linalg.norm(jac[:, k] - plain[:, k]) / np.linalg.norm(plain[:, k])
+        assert error < 0.15, name
+
+
+def test_compensation_undoes_most_of_a_change(linear: tuple) -> None:
+    """Moving the others as predicted leaves a much smaller residual change than moving one
+    parameter alone, for every parameter whose change the others can absorb at all."""
+    objective, truth = linear
+    moves = compensation(objective, truth)
+    assert np.allclose(np.diag(moves), 1.0)
+    residual = objective.residuals(truth[None])[0]
+    shift = 0.01
+    alone = objective.residuals(truth + shift * np.eye(len(FREE))) - residual
+    valley = objective.residuals(np.clip(truth + shift * moves, 0, 1)) - residual
+    ratios = np.linalg.norm(valley, axis=1) / np.linalg.norm(alone, axis=1)
+    assert (ratios < 1.0).all()
+    assert ratios.min() < 0.5  # the mass ratio and stiffnesses trade against each other
+
+
+def test_levenberg_marquardt_returns_to_the_truth(linear: tuple) -> None:
+    """From 0.05 of the box off in every parameter, a few steps come back to the truth (a
+    smooth least-squares problem: Gauss-Newton converges fast)."""
+    objective, truth = linear
+    start = truth + 0.05 * np.array([1, -1, 1, -1, 1])
+    value = float(objective(start[None])[0])
+    best = _levenberg_marquardt(objective, start, value, iterations=6)
+    assert float(objective(best[None])[0]) < 0.01  # from 2.2
+    assert np.abs(best - truth).max() < 0.002
