@@ -43,8 +43,10 @@ it is and moved along the valley the held parameter opens (:func:`identification
 compensation`): the valleys are narrow and curved, and a mass ratio 1.7 % of its box off the
 optimum raised eq. (17) from 0.070 to 0.24 where the start was not moved, 0.072 where it was.
 On truth 4, six of the eight intervals that closed missed the truth before these two measures
-and one (d23's lower end, 0.41 for 0.37) after; the profile also took less time (477 s against
-549 s), its re-optimisations starting nearer their solutions.
+and one (d23's lower end, 0.41 for 0.37) after; with the search's Levenberg-Marquardt stage as
+well, none did (on truth 1, one of nine: d12, with the friction at its bound 0). The profile
+also took less time (477 s against 549 s on one host), its re-optimisations starting nearer
+their solutions.
 
 Verdicts: ``practical`` when the interval closes on both sides inside the bounds; ``structural``
 when the profile has a clear minimum but the interval stays open on a side (identifiable in

@@ -1,7 +1,8 @@
-"""Sensitivities, the valley they predict, and the Levenberg-Marquardt stage, on a linear plant.
+"""Sensitivities, the valley they predict, and the Levenberg-Marquardt stage.
 
-Without free play, friction and combustion variation the model is smooth and deterministic, so
-its derivatives are well defined and independent finite differences must agree.
+On a linear plant without free play, friction and combustion variation the model is smooth and
+deterministic, so its derivatives are well defined and independent finite differences must
+agree. On the noisy reference recording a step must hold on fresh draws of the model.
 """
 
 from __future__ import annotations
@@ -12,13 +13,14 @@ import pytest
 from identification.identify import (
     Objective,
     _levenberg_marquardt,
+    confirmed,
     engine_gain,
     split_runs,
 )
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
 from identification.sensitivity import compensation, jacobian
 from identification.test_setup import MeasuredTest
-from identification.testdata import from_simulation
+from identification.testdata import TestData, from_simulation
 from simulator.chirp import TestPlan
 from simulator.parameters import DrivetrainParameters
 from simulator.simulate import SimulationOptions, simulate
@@ -80,3 +82,28 @@ def test_levenberg_marquardt_returns_to_the_truth(linear: tuple) -> None:
     best = _levenberg_marquardt(objective, start, value, iterations=6)
     assert float(objective(best[None])[0]) < 0.01  # from 2.2
     assert np.abs(best - truth).max() < 0.002
+
+
+def test_a_step_must_hold_on_fresh_draws(
+    reference: DrivetrainParameters, reference_data: TestData
+) -> None:
+    """A move of 1e-6 of the box changes nothing the data can see (only which Monte Carlo draw
+    the model makes): it is confirmed in neither direction. Back from a stiffness 10 % of its
+    box off, it is."""
+    measured = MeasuredTest.from_data("reference", reference_data, 0.25)
+    par = Parameterization.around(reference, measured.idle_torque_nm, engine_gain([measured]))
+    ident, _ = split_runs([measured])
+    objective = Objective(
+        par,
+        [measured.model_test(ident[0])],
+        [[measured.estimates[i].drv_db for i in ident[0]]],
+    )
+    theta = theta_from_parameters(reference)
+    truth = par.unit(np.array([[theta[n] for n in THETA_NAMES]]))[0]
+    nudged = truth + 1e-6 * (np.array(THETA_NAMES) == "Tc12")
+    assert not confirmed(objective, truth, nudged)
+    assert not confirmed(objective, nudged, truth)
+    off = truth + 0.1 * (np.array(THETA_NAMES) == "c12")
+    assert confirmed(objective, off, truth)
+    assert not confirmed(objective, truth, off)
+    assert objective.parameter_sets == 4 * 2 * 4  # four calls, each on four fresh draws

@@ -37,11 +37,15 @@ def sections(**test: float) -> dict[str, dict[str, float]]:
 
 BUDGET = ["--generations", "12", "--polish-evaluations", "300", "--profile-points", "0"]
 TOLERANCE = {"J1": 0.05, "J2": 0.05, "J3": 0.05, "c12": 0.05, "c23": 0.05, "eps12": 0.1}
-TOLERANCE |= {"d12": 0.2, "d23": 0.2, "Tc12": 0.2, "K": 0.05}
+TOLERANCE |= {"d12": 0.2, "d23": 0.2, "K": 0.05}
 """Issue 3's offline tolerances, except the DMF play's: 30 s chirps carry half the data of the
 offline test's 60 s, and eps12 came out 9 % low in one of twelve runs, where the objective at the
 truth (0.275) lay above the one at the result (0.251): the data's own scatter, which no search
-removes. The gear play eps23 misses its 5 % offline too; it is reported, not asserted."""
+removes. The gear play eps23 and the DMF friction Tc12 miss their targets offline too (Tc12's
+profile is flat on four of six simulated truths); they are reported, not asserted. Asserting
+Tc12 here asserted the prior, which is the truth: once the search could leave it, one
+fault-test log fitted Tc12 -72 % better than the truth on eight fresh model draws (eq. 17:
+0.205 against 0.234)."""
 
 
 def count_faults(log: Path) -> tuple[int, int, int]:
@@ -179,7 +183,11 @@ def test_frames_dropped_duplicated_and_corrupted_are_reported_and_the_result_hol
     if identification.exists():
         live = json.loads(identification.read_text())
         truth = reference_parameters().as_dict()
-        errors = {name: live["parameters"][name] / truth[name] - 1 for name in TOLERANCE}
+        errors = {
+            name: live["parameters"][name] / truth[name] - 1
+            for name in truth
+            if name in live["parameters"]
+        }
         print("identified with faults:", {k: f"{v:+.3f}" for k, v in errors.items()})
         # what a miss needs to be understood: the fit, the vehicle's lateness, the worker's log
         context = (live["nrmse"], summary["vehicle_report"], summary["worker_err"][-2000:])
