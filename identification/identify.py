@@ -8,7 +8,9 @@ box in four stages, each on a more exact and dearer objective (the model's reali
 1. differential evolution over the batched simulator (a whole population is one parallel
    simulator call), on one realization per set: it only has to find the basins;
 2. Nelder-Mead from the best members that lie apart (the objective has several basins of
-   nearly equal depth, so polishing the best member alone picks one by luck), on two;
+   nearly equal depth, so polishing the best member alone picks one by luck), on two; the
+   polished points are then ranked on all realizations (on two, the ranking of one
+   hardware-in-the-loop log picked a basin with c12 +12.5 %, 0.1673 against 0.1607 on four);
 3. Nelder-Mead from the best of those, with a small simplex, on the full objective: fewer
    realizations leave more noise in the model's cross-spectra, which biases its |G_DRV|, so the
    cheaper objectives' minima lie a little apart (on the accuracy trial's truth 4, the gear
@@ -345,7 +347,9 @@ def identify(
             _polish(stages["polish"], member, settings.polish_evaluations, step, progress)
             for member in _apart(population, settings.polish_starts, settings.start_distance)
         ]
-        best = min(polished, key=lambda p: p[1])[0]
+        candidates = np.array([member for member, _ in polished])
+        best = candidates[int(np.argmin(objective(candidates)))]  # ranked on all realizations
+        stages["polish"].count(objective)
         lag = stroke_lag(lag_tally, best)  # again, nearer the optimum
         objective = objective.replacing(stroke_lag_s=lag)
         best, value = _polish(

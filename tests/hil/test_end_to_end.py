@@ -42,10 +42,17 @@ TOLERANCE |= {"d12": 0.2, "d23": 0.2, "K": 0.05}
 offline test's 60 s, and eps12 came out 9 % low in one of twelve runs, where the objective at the
 truth (0.275) lay above the one at the result (0.251): the data's own scatter, which no search
 removes. The gear play eps23 and the DMF friction Tc12 miss their targets offline too (Tc12's
-profile is flat on four of six simulated truths); they are reported, not asserted. Asserting
+profile is flat on all six simulated truths); they are reported, not asserted. Asserting
 Tc12 here asserted the prior, which is the truth: once the search could leave it, one
 fault-test log fitted Tc12 -72 % better than the truth on eight fresh model draws (eq. 17:
 0.205 against 0.234)."""
+FIRM = ("J1", "J2", "J3", "c12", "c23", "eps12", "K")
+"""What the fault test asserts: its vehicle's data (plant noise seed 2 with the faults) fit the
+truth poorly (eq. 17 at the truth 0.20-0.27, against 0.11 on the restart test's logs; K from their
+10 N*m run 2-4 % low, the cause not yet found: the same faults injected offline into a clean log
+change nothing), and there the DMF damping and friction trade against each other: on one log the
+search's last stage found d12 -28 % and Tc12 +65 %, fitting better than the truth on eight fresh
+model draws (0.183 against 0.199). The dampings are reported there, not asserted."""
 
 
 def count_faults(log: Path) -> tuple[int, int, int]:
@@ -191,7 +198,7 @@ def test_frames_dropped_duplicated_and_corrupted_are_reported_and_the_result_hol
         print("identified with faults:", {k: f"{v:+.3f}" for k, v in errors.items()})
         # what a miss needs to be understood: the fit, the vehicle's lateness, the worker's log
         context = (live["nrmse"], summary["vehicle_report"], summary["worker_err"][-2000:])
-        for name, tolerance in TOLERANCE.items():
-            assert abs(errors[name]) <= tolerance, (name, errors[name], context)
+        for name in FIRM:
+            assert abs(errors[name]) <= TOLERANCE[name], (name, errors[name], context)
     else:
         assert "cannot give an FRF" in summary["worker_err"], summary["worker_err"]
