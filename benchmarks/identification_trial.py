@@ -58,14 +58,18 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the search")
     parser.add_argument(
+        "--noise-seed", type=int, help="seed of the recording's noise (default: 100 + truth)"
+    )
+    parser.add_argument(
         "--profile-points", type=int, default=0, help="profile grid points; 0: no intervals"
     )
     parser.add_argument("--json", help="write the profiles (values, statistic, margin) here")
     args = parser.parse_args()
 
     truth = draw_truth(args.truth)
+    noise_seed = 100 + args.truth if args.noise_seed is None else args.noise_seed
     measured = MeasuredTest.from_data(
-        "simulated", from_simulation(simulate(truth, seed=100 + args.truth)), 0.25
+        "simulated", from_simulation(simulate(truth, seed=noise_seed)), 0.25
     )
     settings = SearchSettings(
         generations=args.generations,

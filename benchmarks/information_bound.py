@@ -1,0 +1,137 @@
+"""How precisely a chirp test can pin each parameter: the scatter of the linearised estimator.
+
+Simulates one truth's test with several noise seeds (combustion variation and sensor noise) and,
+at the truth, the Jacobian of eq. (17)'s residuals (:func:`identification.sensitivity.jacobian`).
+Near its minimum eq. (17) is a weighted least-squares fit of the dB residuals, each run's bins
+weighted by 1 / (spread^2 * NRMSE), so the estimate's error to first order is
+A r with A = (J^T W J)^-1 J^T W and r the recording's residual at the truth. Applying A to each
+seed's residual gives, without a single search, the bias and scatter an identification from
+such recordings can at best reach (the search adds its own errors; the full trial is
+``identification_trial.py``). It also gives the scatter of the unweighted least-squares fit
+that the profile likelihood assumes, against the standard deviation its statistic implies
+(:func:`identification.profile.noise_scale`), which says whether the profile intervals are
+calibrated. Not a test: nothing is asserted.
+
+    python benchmarks/information_bound.py --truth 1 --seeds 12
+    python benchmarks/information_bound.py --truth 1 --identify 2 5 10   # all three identify
+    python benchmarks/information_bound.py --truth 1 --duration 120      # longer chirps
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+
+import numpy as np
+
+from benchmarks.identification_trial import draw_truth
+from identification.identify import Objective, stroke_lag
+from identification.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from identification.pipeline import identification_runs
+from identification.profile import correlation_length, local_variance
+from identification.sensitivity import jacobian
+from identification.test_setup import MeasuredTest
+from identification.testdata import from_simulation
+from simulator.chirp import TestPlan
+from simulator.parameters import reference_parameters
+from simulator.simulate import simulate
+
+RESOLUTION_HZ = 0.25
+
+
+def main() -> None:
+    """Print each parameter's bias and scatter of the linearised estimator, %."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--truth", type=int, default=0, help="0: reference; n: random truth n")
+    parser.add_argument("--seeds", type=int, default=12, help="noise seeds (recordings)")
+    parser.add_argument("--identify", type=float, nargs="+", help="identifying amplitudes, N*m")
+    parser.add_argument("--duration", type=float, default=60.0, help="chirp duration, s")
+    parser.add_argument("--amplitudes", type=float, nargs="+", default=[2.0, 5.0, 10.0])
+    parser.add_argument("--realizations", type=int, help="model realizations (default: 4)")
+    parser.add_argument(
+        "--variation", type=float, help="model combustion variation (default: as measured)"
+    )
+    args = parser.parse_args()
+
+    truth = draw_truth(args.truth)
+    plan = TestPlan(amplitudes_nm=tuple(args.amplitudes), duration_s=args.duration)
+    recordings = [
+        MeasuredTest.from_data(
+            f"seed {s}", from_simulation(simulate(truth, plan, seed=100 + s)), RESOLUTION_HZ
+        )
+        for s in range(args.seeds)
+    ]
+    selection = identification_runs(recordings, args.identify, RESOLUTION_HZ)
+    true_theta = theta_from_parameters(truth)
+    par = Parameterization.around(reference_parameters(), truth.T_loss, truth.K)
+    unit = par.unit(np.array([[true_theta[n] for n in THETA_NAMES]]))[0]
+    span = par.upper - par.lower
+
+    objectives = [
+        Objective(par, [t.model_test(runs)], [[t.estimates[i].drv_db for i in runs]])
+        for t, runs in zip(selection.tests, selection.runs, strict=True)
+    ]
+    lag = stroke_lag(objectives[0], unit)
+    changes: dict[str, object] = {"stroke_lag_s": lag}
+    if args.realizations:
+        changes["realizations"] = args.realizations
+    if args.variation is not None:
+        changes["combustion_variation"] = args.variation
+    objectives = [o.replacing(**changes) for o in objectives]
+    variations = [round(t.combustion_variation, 4) for t in selection.tests]
+    print(f"combustion variation measured: {variations}")
+    spreads = np.concatenate(
+        [np.full(len(d), np.linalg.norm(d - d.mean())) for d in objectives[0].measured_db[0]]
+    )
+    jac, _ = jacobian(objectives[0], unit)
+    jac_db = jac * spreads[:, None]  # dB per normalised unit
+    # data minus model at the truth, dB, per recording
+    residuals = np.array([-o.residuals(unit[None])[0] for o in objectives]) * spreads
+    runs = np.cumsum([0] + [len(d) for d in objectives[0].measured_db[0]])
+    weights = np.empty(len(spreads))
+    mean_residual = residuals.mean(axis=0)
+    at_truth = [
+        np.linalg.norm(mean_residual[a:b]) / spreads[a] for a, b in itertools.pairwise(runs)
+    ]
+    for (a, b), value in zip(itertools.pairwise(runs), at_truth, strict=True):
+        weights[a:b] = 1.0 / (spreads[a] ** 2 * max(value, 1e-3))
+
+    def estimator(w: np.ndarray) -> np.ndarray:
+        jw = jac_db * w[:, None]
+        return np.linalg.solve(jac_db.T @ jw, jw.T)  # (n_free, bins)
+
+    errors = residuals @ estimator(weights).T * span  # eq. (17)'s weighting, SI units
+    ls_errors = residuals @ estimator(np.ones_like(weights)).T * span
+    # what the profile statistic assumes: Var = tau * sigma2_eff * [(J^T J)^-1]_kk, per seed
+    inverse = np.linalg.inv(jac_db.T @ jac_db)
+    implied = []
+    for r in residuals:
+        pieces = list(itertools.pairwise(runs))
+        s2 = np.concatenate([local_variance(r[a:b]) for a, b in pieces])
+        tau = np.mean([correlation_length(r[a:b]) for a, b in pieces])
+        scales = tau * np.sum(jac_db**2 * s2[:, None], axis=0) / np.sum(jac_db**2, axis=0)
+        implied.append(np.sqrt(scales * np.diag(inverse)) * span)
+    implied = np.mean(implied, axis=0)
+
+    print(
+        f"truth {args.truth}, {args.seeds} seeds, chirps {args.duration:g} s, identifying "
+        f"{args.identify or 'the two largest'}; stroke lag {1000 * lag:.1f} ms; "
+        f"NRMSE of the mean residual at the truth {[round(float(n), 4) for n in at_truth]}"
+    )
+    print(f"{'':>6} {'bias %':>8} {'sd %':>8} {'LS sd %':>8} {'profile sd %':>12} {'ratio':>6}")
+    for k, name in enumerate(THETA_NAMES):
+        value = true_theta[name]
+        sd_ls = ls_errors[:, k].std(ddof=1)
+        print(
+            f"{name:>6} {100 * errors[:, k].mean() / value:+8.1f} "
+            f"{100 * errors[:, k].std(ddof=1) / value:8.1f} {100 * sd_ls / value:8.1f} "
+            f"{100 * implied[k] / value:12.1f} {sd_ls / implied[k]:6.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
