@@ -19,8 +19,10 @@ import time
 import numpy as np
 
 from identification.identify import SearchSettings
+from identification.model_response import model_drv_db
+from identification.objective import nrmse
 from identification.parameterization import THETA_NAMES, theta_from_parameters
-from identification.pipeline import run_identification
+from identification.pipeline import IdentificationReport, run_identification
 from identification.test_setup import MeasuredTest
 from identification.testdata import from_simulation
 from simulator.parameters import DrivetrainParameters, reference_parameters
@@ -37,6 +39,21 @@ def draw_truth(index: int) -> DrivetrainParameters:
         return reference
     factors = np.random.default_rng(index).uniform(1 - TRUTH_SPREAD, 1 + TRUTH_SPREAD, 10)
     return DrivetrainParameters.from_array(reference.as_array() * np.r_[factors, 1.0, 1.0])
+
+
+def objective_at(truth: DrivetrainParameters, report: IdentificationReport) -> float:
+    """Eq. (17) of a parameter set on the report's identification runs, with its stroke lag and
+    its K and T_loss."""
+    params = truth.replace(K=report.gain, T_loss=report.t_loss).as_array()[None]
+    lag = report.identification.stroke_lag_s
+    total = 0.0
+    for test, runs in zip(report.fit.tests, report.fit.runs, strict=True):
+        curves = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
+        total += sum(
+            float(nrmse(test.estimates[i].drv_db, db)[0])
+            for i, db in zip(runs, curves, strict=True)
+        )
+    return total
 
 
 def main() -> None:
@@ -93,6 +110,10 @@ def main() -> None:
         + ", ".join(f"{k} {n} sets in {sec:.1f} s" for k, (n, sec) in result.stages.items())
     )
     print(f"fit NRMSE {result.fit_nrmse}, validation NRMSE {result.validation_nrmse}")
+    print(
+        f"eq. (17): {result.objective:.4f} at the optimum found, "
+        f"{objective_at(truth, report):.4f} at the truth"
+    )
     for name in THETA_NAMES:
         error = 100 * (result.theta[name] / true_theta[name] - 1)
         line = (

@@ -1,14 +1,16 @@
 """The findings of section IV-B for setups 1-4, measured with the rise of each profile.
 
 The rise (left, right) of a profile is how far it climbs on each side of its minimum inside the
-bounds (:attr:`identification.profile.Profile.rise`); below ``FLAT_RISE`` it is flat. The paper's
-findings, stated after its list of setups, are the assertions.
+bounds (:attr:`identification.profile.Profile.rise`); below ``FLAT_RISE`` on a side it is flat.
+The paper's findings, stated after its list of setups, are the assertions.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from identification.parameterization import theta_from_parameters
 from identification.profile import FLAT_RISE
 from identification.setups import profile_setup, setup
 
@@ -26,7 +28,7 @@ def profiles() -> dict:
 def test_setup1_only_the_mass_ratio_is_identifiable(profiles: dict) -> None:
     """Setup 1: J_sum, c, d and K flat (they scale together, eq. 19); x a clear minimum."""
     for name in ("J_sum", "c12", "d12", "K"):
-        assert max(profiles[1][name].rise) < FLAT_RISE, name
+        assert profiles[1][name].flat, name
         assert profiles[1][name].verdict == "no"
     assert min(profiles[1]["x1"].rise) > CLEAR
 
@@ -44,3 +46,25 @@ def test_setup3_two_signals_steepen_stiffness_and_play(profiles: dict) -> None:
     for name in ("c12", "eps12"):
         (left2, right2), (left3, right3) = profiles[2][name].rise, profiles[3][name].rise
         assert left3 > 2 * left2 and right3 > 2 * right2, name
+
+
+@pytest.fixture(scope="module")
+def setup4() -> dict:
+    return profile_setup(setup(4), duration_s=CHIRP_S)
+
+
+def test_setup4_every_parameter_has_a_unique_minimum_damping_the_shallowest(setup4: dict) -> None:
+    """Setup 4: all ten parameters have a minimum at the truth, steep on both sides; the
+    dissipative ones (friction and dampings) are the shallowest. Measured: the DMF friction
+    climbs 0.016/0.017, d12 0.17/0.16, d23 0.26/0.13, every stiffness, inertia and the DMF play
+    at least 0.23 on each side, and the gear play 0.13/0.12, as shallow as the dampings."""
+    truth = setup(4).truth
+    for name, prof in setup4.items():
+        assert not prof.flat and prof.verdict != "no", name
+        best = prof.values[int(np.argmin(prof.objective))]
+        step = (prof.values[-1] - prof.values[0]) / 6  # the seven-point grid's spacing
+        assert abs(best - theta_from_parameters(truth)[name]) < 0.5 * step, name
+    shallowest = {name: min(prof.rise) for name, prof in setup4.items()}
+    assert min(shallowest, key=shallowest.get) == "Tc12"
+    for name in ("J_sum", "x1", "x12", "c12", "c23", "eps12"):
+        assert shallowest[name] > max(shallowest["d12"], shallowest["d23"]), name
