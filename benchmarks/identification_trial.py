@@ -75,6 +75,11 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the search")
     parser.add_argument(
+        "--combustion-variation",
+        type=float,
+        help="fix the model's combustion variation (default: as measured at idle)",
+    )
+    parser.add_argument(
         "--noise-seed", type=int, help="seed of the recording's noise (default: 100 + truth)"
     )
     parser.add_argument(
@@ -95,8 +100,17 @@ def main() -> None:
         seed=args.seed,
     )
     began = time.perf_counter()
+    fixed = (
+        {}
+        if args.combustion_variation is None
+        else {"combustion_variation": args.combustion_variation}
+    )
     report = run_identification(
-        [measured], reference_parameters(), settings=settings, profile_points=args.profile_points
+        [measured],
+        reference_parameters(),
+        fixed=fixed,
+        settings=settings,
+        profile_points=args.profile_points,
     )
     result = report.identification
     true_theta = theta_from_parameters(truth)

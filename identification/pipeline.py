@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtid.errors import ConfigError
 from identification.frf import DEFAULT_RESOLUTION_HZ, FrfEstimate
 from identification.identify import (
     Identification,
@@ -38,8 +39,13 @@ from identification.test_setup import MeasuredTest
 from identification.testdata import Series, TestData
 from simulator.parameters import DrivetrainParameters
 
-OPERATING_POINT = ("K", "T_loss")
-"""Parameters measured before the drivetrain fit (eq. 24 and the idle torque); fixable too."""
+OPERATING_POINT = ("K", "T_loss", "combustion_variation")
+"""What is measured of the operating point before the drivetrain fit, each fixable too: K
+(eq. 24), T_loss (the idle torque, N*m) and the relative cycle-to-cycle variation of each
+stroke's mean torque that the model engine repeats
+(:attr:`identification.test_setup.MeasuredTest.combustion_variation`). Measured at idle, the
+variation counts the torque sensor's noise in; where the vehicle's indicating system gives the
+COV of IMEP, that is the better value."""
 HOLD_OUT_S = 2.0
 """Data kept after the last run a test analyses, s: one second of idle past the idle margin
 (:data:`identification.test_setup.IDLE_MARGIN_S`), and less than the test's 3 s pause."""
@@ -170,6 +176,7 @@ class IdentificationReport:
 
     def validated(self, selection: RunSelection) -> IdentificationReport:
         """The report with the validation NRMSE of the identified parameters on these runs."""
+        selection = with_variation(selection, self.fixed)
         params = self.identification.parameters.as_array()[None]
         lag = self.identification.stroke_lag_s
         scores = {}
@@ -214,10 +221,33 @@ class IdentificationReport:
             "identifiable": {name: prof.verdict for name, prof in self.profiles.items()},
             "fixed": dict(self.fixed),
             "T_loss": self.t_loss,
+            "combustion_variation": {t.name: t.combustion_variation for t in self.fit.tests}
+            if self.fit
+            else {},
             "objective": result.objective,
             "parameter_sets": result.parameter_sets,
             "seconds": result.seconds,
         }
+
+
+def with_variation(selection: RunSelection, fixed: Mapping[str, float]) -> RunSelection:
+    """The selection with its tests' combustion variation replaced where ``fixed`` holds one.
+
+    Raises
+    ------
+    ConfigError
+        If the fixed variation is not within [0, 1).
+    """
+    if "combustion_variation" not in fixed:
+        return selection
+    variation = fixed["combustion_variation"]
+    if not 0.0 <= variation < 1.0:
+        raise ConfigError(
+            f"combustion_variation is a relative standard deviation within [0, 1), got "
+            f"{variation:g} (0.03 is 3 %)"
+        )
+    tests = tuple(dataclasses.replace(t, combustion_variation=variation) for t in selection.tests)
+    return dataclasses.replace(selection, tests=tests)
 
 
 def run_identification(
@@ -274,9 +304,10 @@ def identify_runs(
     adds the validation.
     """
     fixed = dict(fixed or {})
+    operating = {name: fixed.pop(name) for name in OPERATING_POINT if name in fixed}
+    selection = with_variation(selection, operating)
     tests = selection.tests
     ident = [list(runs) for runs in selection.runs]
-    operating = {name: fixed.pop(name) for name in OPERATING_POINT if name in fixed}
     gain = (
         operating["K"]
         if "K" in operating
