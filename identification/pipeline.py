@@ -13,6 +13,7 @@ run, so what follows the test (the daemon's last frames) does not matter either.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -38,6 +39,8 @@ from identification.start_values import start_thetas
 from identification.test_setup import MeasuredTest
 from identification.testdata import Series, TestData
 from simulator.parameters import DrivetrainParameters
+
+logger = logging.getLogger(__name__)
 
 OPERATING_POINT = ("K", "T_loss", "combustion_variation")
 """What is measured of the operating point before the drivetrain fit, each fixable too: K
@@ -164,6 +167,14 @@ class IdentificationReport:
         Parameters held at a value, by name (setup-4 names, K, T_loss).
     gain, t_loss
         K and T_loss used, measured or fixed.
+    fit, validation
+        The identification and validation runs, with the combustion variation the model
+        engine repeated in them.
+    variation_without_noise
+        Per recording, the combustion variation with the torque sensor's noise taken out,
+        judged at the identified parameters
+        (:meth:`identification.test_setup.MeasuredTest.without_sensor_noise`): a diagnostic
+        for ``--fix combustion_variation=``, not used by the fit (README, *Accuracy*).
     """
 
     identification: Identification
@@ -173,10 +184,14 @@ class IdentificationReport:
     t_loss: float
     fit: RunSelection | None = None
     validation: RunSelection | None = None
+    variation_without_noise: Mapping[str, float] = dataclasses.field(default_factory=dict)
 
     def validated(self, selection: RunSelection) -> IdentificationReport:
-        """The report with the validation NRMSE of the identified parameters on these runs."""
-        selection = with_variation(selection, self.fixed)
+        """The report with the validation NRMSE of the identified parameters on these runs, the
+        model engine varying as it did in the identification."""
+        if self.fit is not None:
+            variations = {t.name: t.combustion_variation for t in self.fit.tests}
+            selection = with_variation(selection, variations)
         params = self.identification.parameters.as_array()[None]
         lag = self.identification.stroke_lag_s
         scores = {}
@@ -224,30 +239,33 @@ class IdentificationReport:
             "combustion_variation": {t.name: t.combustion_variation for t in self.fit.tests}
             if self.fit
             else {},
+            "combustion_variation_without_sensor_noise": dict(self.variation_without_noise),
             "objective": result.objective,
             "parameter_sets": result.parameter_sets,
             "seconds": result.seconds,
         }
 
 
-def with_variation(selection: RunSelection, fixed: Mapping[str, float]) -> RunSelection:
-    """The selection with its tests' combustion variation replaced where ``fixed`` holds one.
+def with_variation(selection: RunSelection, variations: Mapping[str, float]) -> RunSelection:
+    """The selection with the combustion variation of each test named in ``variations``
+    replaced (the same recording's identification and validation runs share it)."""
+    tests = tuple(
+        dataclasses.replace(t, combustion_variation=variations[t.name])
+        if t.name in variations
+        else t
+        for t in selection.tests
+    )
+    return dataclasses.replace(selection, tests=tests)
 
-    Raises
-    ------
-    ConfigError
-        If the fixed variation is not within [0, 1).
-    """
-    if "combustion_variation" not in fixed:
-        return selection
-    variation = fixed["combustion_variation"]
-    if not 0.0 <= variation < 1.0:
+
+def _fixed_variation(value: float) -> float:
+    """A combustion variation given with --fix, checked."""
+    if not 0.0 <= value < 1.0:
         raise ConfigError(
             f"combustion_variation is a relative standard deviation within [0, 1), got "
-            f"{variation:g} (0.03 is 3 %)"
+            f"{value:g} (0.03 is 3 %)"
         )
-    tests = tuple(dataclasses.replace(t, combustion_variation=variation) for t in selection.tests)
-    return dataclasses.replace(selection, tests=tests)
+    return value
 
 
 def run_identification(
@@ -305,7 +323,9 @@ def identify_runs(
     """
     fixed = dict(fixed or {})
     operating = {name: fixed.pop(name) for name in OPERATING_POINT if name in fixed}
-    selection = with_variation(selection, operating)
+    if "combustion_variation" in operating:
+        value = _fixed_variation(operating["combustion_variation"])
+        selection = with_variation(selection, {t.name: value for t in selection.tests})
     tests = selection.tests
     ident = [list(runs) for runs in selection.runs]
     gain = (
@@ -326,6 +346,10 @@ def identify_runs(
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds)
     starts = start_thetas(selection.estimates(), prior)
     result = identify(tests, par, ident, [[] for _ in tests], settings, progress, starts=starts)
+    without_noise = {  # a diagnostic: too scattered on a few seconds of idle to fit with
+        t.name: t.without_sensor_noise(result.parameters.as_array()).combustion_variation
+        for t in tests
+    }
     profiles: dict[str, Profile] = {}
     if profile_points:
         settings = settings or SearchSettings()
@@ -351,5 +375,11 @@ def identify_runs(
                 search_objective=objective.replacing(realizations=settings.global_realizations),
             )
     return IdentificationReport(
-        result, profiles, {**fixed, **operating}, gain, t_loss, fit=selection
+        result,
+        profiles,
+        {**fixed, **operating},
+        gain,
+        t_loss,
+        fit=selection,
+        variation_without_noise=without_noise,
     )

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from dtid.errors import AnalysisError
+from identification.combustion import separated_variation, stroke_variation
 from identification.frf import FrfEstimate, estimate_frf
 from identification.model_response import ModelTest
 from identification.runs import ChirpRun, find_runs
@@ -44,8 +46,10 @@ class MeasuredTest:
         Mean measured torque at idle outside the chirps, N*m: the loss torque T_loss.
     combustion_variation
         Relative standard deviation of the idle torque from stroke to stroke: the cycle-to-cycle
-        variation the model engine repeats (it includes the torque sensor's noise, so it errs
-        high; about 1e-4 for a clean simulated recording, the idle control's own changes).
+        variation the model engine repeats. As measured it includes the torque sensor's noise
+        and errs high (about 1e-4 for a clean simulated recording, the idle control's own
+        changes); :meth:`without_sensor_noise` takes the noise out once the drivetrain is
+        known.
     """
 
     name: str
@@ -83,8 +87,7 @@ class MeasuredTest:
                 "torque T_loss cannot be measured (record a few seconds of idle before the test)"
             )
         mean = float(np.mean(torque))
-        # stroke-to-stroke differences: the slow idle control cancels, the variation stays
-        variation = float(np.std(np.diff(torque)) / np.sqrt(2) / mean) if mean > 0 else 0.0
+        variation = stroke_variation(torque)
         return cls(
             name,
             data,
@@ -94,6 +97,17 @@ class MeasuredTest:
             variation,
             tuple(unusable),
         )
+
+    def without_sensor_noise(self, params: np.ndarray) -> MeasuredTest:
+        """This recording with the torque sensor's noise taken out of its combustion variation
+        (:func:`identification.combustion.separated_variation`), judged with the drivetrain
+        parameters ``params`` ((12,), SI units)."""
+        runs = [e.run for e in self.estimates] + [run for run, _ in self.unusable]
+        idle = _idle(self.data.mean_torque.t, runs)
+        variation = separated_variation(
+            self.data.speed, self.data.mean_torque, idle, self.setpoint_rpm, params
+        )
+        return dataclasses.replace(self, combustion_variation=variation)
 
     def model_test(
         self, indices: Sequence[int], realizations: int | None = None, stroke_lag_s: float = 0.0

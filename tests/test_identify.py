@@ -185,7 +185,10 @@ def test_a_known_combustion_variation_replaces_the_idle_estimate(
     known = run_identification(
         [measured], reference, fixed={**fix, "combustion_variation": 0.03}, profile_points=0
     )
-    assert idle.as_dict()["combustion_variation"]["reference"] > 0.034
+    document = idle.as_dict()
+    assert document["combustion_variation"]["reference"] > 0.034
+    noise_free = document["combustion_variation_without_sensor_noise"]["reference"]
+    assert noise_free < document["combustion_variation"]["reference"]
     assert sum(known.identification.fit_nrmse.values()) < 0.95 * sum(
         idle.identification.fit_nrmse.values()
     )

@@ -121,6 +121,13 @@ def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> Non
     for role, values in document["nrmse"].items():
         for label, value in values.items():
             print(f"NRMSE {role:<10} {label}: {value:.3f}")
+    separated = document["combustion_variation_without_sensor_noise"]
+    for name, value in document["combustion_variation"].items():
+        source = "fixed" if "combustion_variation" in fixed else "measured at idle"
+        print(
+            f"combustion variation of {name}: {value:.4f} ({source}); {separated[name]:.4f} "
+            "without the torque sensor's noise"
+        )
     print(f"{document['parameter_sets']} parameter sets simulated in {document['seconds']:.0f} s")
 
 
