@@ -52,7 +52,8 @@ Verdicts: ``practical`` when the interval closes on both sides inside the bounds
 when the profile has a clear minimum but the interval stays open on a side (identifiable in
 principle, not by these data); ``no`` when the profile is flat: it never crosses the threshold,
 or it climbs less than :data:`FLAT_RISE` inside the bounds on a side of its minimum (see
-:attr:`Profile.rise`).
+:attr:`Profile.rise`), or, on a recording with combustion variation, less than
+:data:`NOISY_FLAT_RISE` on both.
 """
 
 from __future__ import annotations
@@ -90,6 +91,14 @@ their compensating partners stay inside the bounds (0.026-0.032 on the other, wh
 optimiser has to compensate near a bound, so a test of both sides could not tell them from an
 identifiable parameter); the shallowest identifiable profile, setup 4's DMF friction, climbs
 0.016-0.017 on both; every other profile of setups 1-4 at least 0.12."""
+NOISY_FLAT_RISE = 0.05
+"""On a recording with combustion variation a profile must also climb this far somewhere (NRMSE
+units) to be more than flat: the likelihood ratio of such a shallow profile rests on the
+recording's own scatter and the statistic's known excess (about 1.5 times, README *Accuracy*).
+Measured on the accuracy trial's truth 1: the DMF friction, found at 0 where the truth has
+0.28 N*m, climbed less than this, and without the rule its interval [0, 0.249] missed the
+truth; with it the friction is `no` on all six truths, as the paper's finding on real data
+("rounded or even flat at certain error level") expects."""
 
 
 @dataclass(frozen=True)
@@ -429,7 +438,8 @@ def profile(
         values, stat - margin, lowest + minimum() * (highest - lowest)
     )
     result = Profile(name, values, best_objective, stat, margin, interval, verdict)
-    if result.flat:
+    climbs = max((rise for rise in result.rise if np.isfinite(rise)), default=0.0)
+    if result.flat or (stochastic and climbs < NOISY_FLAT_RISE):
         return Profile(name, values, best_objective, stat, margin, (None, None), "no")
     return result
 
