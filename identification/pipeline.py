@@ -164,7 +164,7 @@ class IdentificationReport:
     profiles
         Profile of each free parameter (empty when profiles were not asked for).
     fixed
-        Parameters held at a value, by name (setup-4 names, K, T_loss).
+        Parameters held at a value, by name (setup-4 names, K, T_loss, combustion_variation).
     gain, t_loss
         K and T_loss used, measured or fixed.
     fit, validation
