@@ -18,6 +18,8 @@ calibrated. Not a test: nothing is asserted.
     PYTHONPATH=. python benchmarks/information_bound.py --truth 1 --identify 2 5 10  # all three
     PYTHONPATH=. python benchmarks/information_bound.py --truth 1 --duration 120  # longer chirps
     PYTHONPATH=. python benchmarks/information_bound.py --truth 1 --variation 0.03  # true 3 %
+    PYTHONPATH=. python benchmarks/information_bound.py --truth 3 --recorded 0.03 0 0  # no noise
+    PYTHONPATH=. python benchmarks/information_bound.py --truth 3 --plain  # independent draws
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from identification.test_setup import MeasuredTest
 from identification.testdata import from_simulation
 from simulator.chirp import TestPlan
 from simulator.parameters import reference_parameters
-from simulator.simulate import simulate
+from simulator.simulate import SimulationOptions, simulate
 
 RESOLUTION_HZ = 0.25
 
@@ -58,13 +60,35 @@ def main() -> None:
     parser.add_argument(
         "--variation", type=float, help="model combustion variation (default: as measured)"
     )
+    parser.add_argument(
+        "--recorded",
+        nargs=3,
+        type=float,
+        metavar=("VARIATION", "SPEED_RPM", "TORQUE_NM"),
+        help="the recordings' combustion variation and sensor noise (default: 0.03 0.3 0.3)",
+    )
+    parser.add_argument(
+        "--plain",
+        action="store_true",
+        help="model realizations with independent draws, not antithetic pairs",
+    )
     args = parser.parse_args()
 
     truth = draw_truth(args.truth)
     plan = TestPlan(amplitudes_nm=tuple(args.amplitudes), duration_s=args.duration)
+    options = SimulationOptions()
+    if args.recorded:
+        variation, speed_noise, torque_noise = args.recorded
+        options = SimulationOptions(
+            combustion_variation=variation,
+            speed_noise_rpm=speed_noise,
+            torque_noise_nm=torque_noise,
+        )
     recordings = [
         MeasuredTest.from_data(
-            f"seed {s}", from_simulation(simulate(truth, plan, seed=100 + s)), RESOLUTION_HZ
+            f"seed {s}",
+            from_simulation(simulate(truth, plan, options, seed=100 + s)),
+            RESOLUTION_HZ,
         )
         for s in range(args.seeds)
     ]
@@ -78,13 +102,16 @@ def main() -> None:
         Objective(par, [t.model_test(runs)], [[t.estimates[i].drv_db for i in runs]])
         for t, runs in zip(selection.tests, selection.runs, strict=True)
     ]
-    lag = stroke_lag(objectives[0], unit)
-    changes: dict[str, object] = {"stroke_lag_s": lag}
+    changes: dict[str, object] = {}
     if args.realizations:
         changes["realizations"] = args.realizations
+    if args.plain:
+        changes["antithetic"] = False
     if args.variation is not None:
         changes["combustion_variation"] = args.variation
     objectives = [o.replacing(**changes) for o in objectives]
+    lag = stroke_lag(objectives[0], unit)
+    objectives = [o.replacing(stroke_lag_s=lag) for o in objectives]
     variations = [round(t.combustion_variation, 4) for t in selection.tests]
     print(f"combustion variation measured: {variations}")
     spreads = np.concatenate(

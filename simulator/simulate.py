@@ -237,10 +237,22 @@ def simulate(
     out_torque = np.empty((n_stroke_max, 3))
     tables = options.tables()
     n_speed, n_torque, status = run_plant(
-        params, tables.combustion_shape, tables.compression, tables.inertia,
-        options.controller.as_array(), request_t, request_nm, 1.0, plan.end_s,
-        substeps(params, options.controller), options.sigmas(), cv_noise, speed_noise,
-        torque_noise, out_speed, out_torque,
+        params,
+        tables.combustion_shape,
+        tables.compression,
+        tables.inertia,
+        options.controller.as_array(),
+        request_t,
+        request_nm,
+        1.0,
+        plan.end_s,
+        substeps(params, options.controller),
+        options.sigmas(),
+        cv_noise,
+        speed_noise,
+        torque_noise,
+        out_speed,
+        out_torque,
     )
     if status == STATUS_SPEED_RANGE:
         raise AnalysisError(
@@ -251,7 +263,11 @@ def simulate(
     if status != STATUS_OK:
         raise RuntimeError(f"simulator kernel ended with status {status}")
     return SimulationResult.from_outputs(
-        out_speed[:n_speed], out_torque[:n_torque], (request_t, request_nm), parameters, plan,
+        out_speed[:n_speed],
+        out_torque[:n_torque],
+        (request_t, request_nm),
+        parameters,
+        plan,
         options,
     )
 
@@ -286,6 +302,7 @@ def simulate_batch(
     options: SimulationOptions | None = None,
     seed: int = 0,
     streams: np.ndarray | None = None,
+    signs: np.ndarray | None = None,
 ) -> BatchResult:
     """Simulate many parameter sets, each driven by one chirp of its own amplitude.
 
@@ -294,12 +311,17 @@ def simulate_batch(
     See :func:`replay_batch` for the parameters.
     """
     single = TestPlan(
-        amplitudes_nm=(1.0,), f1_hz=plan.f1_hz, f2_hz=plan.f2_hz, duration_s=plan.duration_s,
-        settle_s=plan.settle_s, pause_s=plan.pause_s, request_period_s=plan.request_period_s,
+        amplitudes_nm=(1.0,),
+        f1_hz=plan.f1_hz,
+        f2_hz=plan.f2_hz,
+        duration_s=plan.duration_s,
+        settle_s=plan.settle_s,
+        pause_s=plan.pause_s,
+        request_period_s=plan.request_period_s,
     )
     request_t, request_nm = test_requests(single)
     return replay_batch(
-        params, request_t, request_nm, amplitudes_nm, single.end_s, options, seed, streams
+        params, request_t, request_nm, amplitudes_nm, single.end_s, options, seed, streams, signs
     )
 
 
@@ -312,6 +334,7 @@ def replay_batch(
     options: SimulationOptions | None = None,
     seed: int = 0,
     streams: np.ndarray | None = None,
+    signs: np.ndarray | None = None,
 ) -> BatchResult:
     """Simulate many parameter sets driven by one table of test-torque requests, in parallel.
 
@@ -336,6 +359,10 @@ def replay_batch(
         (n_jobs,) noise stream of each job, ``arange(n_jobs)`` by default. Jobs given the same
         stream see the same combustion variation and sensor noise (common random numbers, which
         keep an objective over parameter sets deterministic).
+    signs
+        (n_jobs,) +1 or -1 on each job's draws, all +1 by default: a job given -1 sees its
+        stream's draws negated (antithetic variates: a pair of jobs with the same stream and
+        opposite signs cancels the noise's first-order effect in their mean).
 
     Returns
     -------
@@ -356,6 +383,9 @@ def replay_batch(
     streams = np.arange(n_jobs) if streams is None else np.asarray(streams, dtype=np.int64)
     if streams.shape != (n_jobs,):
         raise ConfigError(f"streams must have shape ({n_jobs},), got {streams.shape}")
+    signs = np.ones(n_jobs) if signs is None else np.asarray(signs, dtype=np.float64)
+    if signs.shape != (n_jobs,) or not np.all(np.abs(signs) == 1):
+        raise ConfigError(f"signs must be ({n_jobs},) values of +1 or -1")
     n_speed_max, n_stroke_max = output_capacity(t_end, options.controller)
     cv_noise = np.empty((n_jobs, n_stroke_max))
     torque_noise = np.empty((n_jobs, n_stroke_max))
@@ -363,17 +393,32 @@ def replay_batch(
     for stream in np.unique(streams):
         rng = np.random.default_rng((seed, int(stream)))
         rows = streams == stream
-        cv_noise[rows] = rng.standard_normal(n_stroke_max)
-        torque_noise[rows] = rng.standard_normal(n_stroke_max)
-        speed_noise[rows] = rng.standard_normal(n_speed_max)
+        sign = signs[rows, None]
+        cv_noise[rows] = sign * rng.standard_normal(n_stroke_max)
+        torque_noise[rows] = sign * rng.standard_normal(n_stroke_max)
+        speed_noise[rows] = sign * rng.standard_normal(n_speed_max)
     n_sub = np.array([substeps(row, options.controller) for row in params], dtype=np.int64)
     out_speed = np.empty((n_jobs, n_speed_max, 5))
     out_torque = np.empty((n_jobs, n_stroke_max, 3))
     counts = np.zeros((n_jobs, 3), dtype=np.int64)
     tables = options.tables()
     run_plant_batch(
-        params, tables.combustion_shape, tables.compression, tables.inertia,
-        options.controller.as_array(), request_t, request_nm, scales, t_end, n_sub,
-        options.sigmas(), cv_noise, speed_noise, torque_noise, out_speed, out_torque, counts,
+        params,
+        tables.combustion_shape,
+        tables.compression,
+        tables.inertia,
+        options.controller.as_array(),
+        request_t,
+        request_nm,
+        scales,
+        t_end,
+        n_sub,
+        options.sigmas(),
+        cv_noise,
+        speed_noise,
+        torque_noise,
+        out_speed,
+        out_torque,
+        counts,
     )
     return BatchResult(out_speed, out_torque, counts[:, 0], counts[:, 1], counts[:, 2])
