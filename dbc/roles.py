@@ -28,3 +28,7 @@ EXTRA_SIGNAL_KEYS: Mapping[str, tuple[str, ...]] = MappingProxyType(
         "heartbeat": ("counter",),
     }
 )
+#: Bus time without a valid test-torque request after which the engine ECU applies zero test
+#: torque, s (five request periods of 10 ms): the product ECU's, and what the analysis assumes of
+#: a vehicle whose signal map gives no ``timeout_s`` for its ``test_torque`` role.
+DEFAULT_REQUEST_TIMEOUT_S: float = 0.05

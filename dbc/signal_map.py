@@ -14,7 +14,8 @@ role                canonical    optional keys
 ==================  ===========  ===============================================
 ``speed``           rpm          ``unit``, ``scale``, ``counter``
 ``mean_torque``     N*m          ``unit``, ``scale``, ``cylinder``
-``test_torque``     N*m          ``unit``, ``scale``, ``counter``, ``enable``, ``checksum``
+``test_torque``     N*m          ``unit``, ``scale``, ``counter``, ``enable``, ``checksum``,
+                                 ``timeout_s``
 ``torque_request``  N*m          ``unit``, ``scale``
 ``heartbeat``       (raw state)  none
 ==================  ===========  ===============================================
@@ -22,7 +23,10 @@ role                canonical    optional keys
 ``counter``, ``cylinder``, ``enable`` and ``checksum`` name further signals of the same message.
 ``unit`` is the unit of the decoded signal after ``scale`` when it differs from the canonical one,
 and ``scale`` a factor applied after decoding (for a torque in % of a 450 N*m reference,
-``scale = 4.5``): ``canonical = unit_convert(decoded * scale, unit)``.
+``scale = 4.5``): ``canonical = unit_convert(decoded * scale, unit)``. ``timeout_s`` is how long
+the engine ECU keeps applying the last test-torque request when no valid one follows, s
+(:data:`dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` when not given): after it the ECU applies zero, and
+the analysis reads a recording's requests so (:mod:`identification.recording`).
 
 ``speed``, ``mean_torque`` and ``test_torque`` are needed by the analysis commands; a map may lack
 them (``inspect`` reports what is missing), and :meth:`SignalMap.require` raises a clear error
@@ -42,7 +46,13 @@ from typing import Any
 from cantools.database.can import Database
 
 from dbc.interface import VehicleInterface
-from dbc.roles import CANONICAL_UNITS, EXTRA_SIGNAL_KEYS, REQUIRED_ROLES, ROLES
+from dbc.roles import (
+    CANONICAL_UNITS,
+    DEFAULT_REQUEST_TIMEOUT_S,
+    EXTRA_SIGNAL_KEYS,
+    REQUIRED_ROLES,
+    ROLES,
+)
 from dtid.errors import ConfigError
 
 # Factor from each accepted unit to the canonical unit, per canonical unit.
@@ -74,6 +84,9 @@ class RoleSpec:
         Factor applied to the decoded signal value, > 0.
     counter, cylinder, enable, checksum : str or None
         Names of further signals of the same message, where the map names them.
+    timeout_s : float
+        For the test torque: bus time after the last valid request from which the ECU applies
+        zero, s; :data:`dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` unless the map gives it.
     """
 
     role: str
@@ -85,6 +98,7 @@ class RoleSpec:
     cylinder: str | None = None
     enable: str | None = None
     checksum: str | None = None
+    timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
 
     @property
     def canonical_unit(self) -> str | None:
@@ -183,7 +197,8 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
     where = f"signal map {source}: role '{role}'"
     extra_keys = EXTRA_SIGNAL_KEYS[role]
     canonical = CANONICAL_UNITS[role]
-    allowed = _NAME_KEYS + (("unit", "scale") if canonical else ()) + extra_keys
+    timeout_keys = ("timeout_s",) if role == "test_torque" else ()
+    allowed = _NAME_KEYS + (("unit", "scale") if canonical else ()) + extra_keys + timeout_keys
     for key in table:
         if key not in allowed:
             raise ConfigError(
@@ -224,7 +239,19 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
             f"{where} key 'scale' must be a finite number > 0, got {scale!r}; e.g. scale = 4.5 "
             "for a torque in % of a 450 N*m reference"
         )
-    return RoleSpec(role=role, unit=unit, scale=float(scale), **names)
+    timeout = table.get("timeout_s", DEFAULT_REQUEST_TIMEOUT_S)
+    if (
+        isinstance(timeout, bool)
+        or not isinstance(timeout, int | float)
+        or not math.isfinite(timeout)
+        or timeout <= 0
+    ):
+        raise ConfigError(
+            f"{where} key 'timeout_s' must be a number of seconds > 0, got {_type_name(timeout)} "
+            f"{timeout!r}; e.g. timeout_s = 0.05 for an ECU that drops the test torque 50 ms "
+            "after the last request"
+        )
+    return RoleSpec(role=role, unit=unit, scale=float(scale), timeout_s=float(timeout), **names)
 
 
 def load_signal_map(path: str | os.PathLike[str]) -> SignalMap:

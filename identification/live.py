@@ -34,7 +34,7 @@ from identification.pipeline import (
     truncated,
     validation_runs,
 )
-from identification.recording import Recording, recording_from_series
+from identification.recording import Recording, recording_from_series, request_timeout
 from identification.runs import ChirpRun, find_runs
 from identification.test_setup import MeasuredTest
 from identification.testdata import TestData
@@ -216,6 +216,7 @@ class LiveSession:
             self.frames,
             max(self.last_t.values(), default=self.log_start_s),
             self.interface.missing_roles(),
+            request_timeout(self.interface),
         )
 
     def test_data(self) -> TestData:

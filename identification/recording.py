@@ -12,6 +12,7 @@ import numpy as np
 
 from acquisition.logfile import read_log
 from dbc.interface import RoleSeries, VehicleInterface
+from dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import AnalysisError
 from identification.late_frames import retime_late_bursts
 from identification.testdata import Series, TestData
@@ -39,6 +40,9 @@ class Recording:
         Decoded series per mapped role, times in s from the recording's first frame.
     missing_roles
         Required roles the signal map does not define.
+    request_timeout_s
+        How long the ECU applies a test-torque request when no valid one follows, s (the
+        signal map's ``timeout_s``).
     """
 
     path: Path
@@ -46,6 +50,7 @@ class Recording:
     duration_s: float
     roles: dict[str, RoleSeries]
     missing_roles: tuple[str, ...]
+    request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
 
     def series(self, role: str) -> Series:
         """The role's samples as a :class:`identification.testdata.Series`."""
@@ -68,11 +73,41 @@ class Recording:
         return TestData(
             speed=self._crank_series("speed"),
             mean_torque=self._crank_series("mean_torque"),
-            test_torque=self.series("test_torque"),
+            test_torque=self._applied_test_torque(),
             torque_request=self._crank_series("torque_request")
             if request is not None and len(request.timestamps) > 1
             else None,
         )
+
+    def _applied_test_torque(self) -> Series:
+        """The test torque the ECU applied, from the requests the recording holds, N*m.
+
+        The ECU applies a request until the next one, but zero once ``request_timeout_s`` has
+        passed without one (the tool stalled, frames were lost) and while the request's enable
+        signal, where mapped, is 0. Holding the last request over such a pause, as the plain
+        series would, makes the FRF's excitation and the model's replay differ from what drove
+        the engine.
+        """
+        decoded = self.roles["test_torque"]
+        t, value = decoded.timestamps, decoded.values.astype(float)
+        enable = decoded.extra.get("enable")
+        if enable is not None:
+            value = np.where(enable == 0, 0.0, value)
+        timeout = self.request_timeout_s
+        pauses = np.flatnonzero(np.diff(t) > timeout)
+        if len(pauses):
+            longest = float(np.max(np.diff(t)[pauses]))
+            logger.warning(
+                "%s: %d pause(s) in the test-torque requests longer than the ECU's timeout "
+                "(%.3f s; the longest %.3f s); the test torque is taken as zero after the "
+                "timeout, as the ECU applied it",
+                self.path,
+                len(pauses),
+                timeout,
+                longest,
+            )
+        ends = np.append(pauses, len(t) - 1) if len(t) else pauses
+        return Series(np.insert(t, ends + 1, t[ends] + timeout), np.insert(value, ends + 1, 0.0))
 
     def _crank_series(self, role: str) -> Series:
         """A crank-synchronous role's samples: a frame repeating its predecessor's counter (a
@@ -124,6 +159,7 @@ def recording_from_series(
     n_frames: int,
     end_s: float,
     missing_roles: tuple[str, ...],
+    request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S,
 ) -> Recording:
     """A recording from decoded series with absolute times: the one constructor of both paths.
 
@@ -145,6 +181,8 @@ def recording_from_series(
         Timestamp of the last frame, s.
     missing_roles
         Required roles the signal map does not define.
+    request_timeout_s
+        The ECU's request timeout, s (the signal map's ``timeout_s`` of the test torque).
     """
     roles = {role: _in_time_order(series, start_s, path) for role, series in decoded.items()}
     return Recording(
@@ -153,7 +191,14 @@ def recording_from_series(
         duration_s=end_s - start_s,
         roles=roles,
         missing_roles=missing_roles,
+        request_timeout_s=request_timeout_s,
     )
+
+
+def request_timeout(interface: VehicleInterface) -> float:
+    """The ECU's test-torque request timeout the interface's signal map gives, s."""
+    spec = interface.signal_map.roles.get("test_torque")
+    return DEFAULT_REQUEST_TIMEOUT_S if spec is None else spec.timeout_s
 
 
 def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) -> Recording:
@@ -177,4 +222,5 @@ def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) ->
         len(frames),
         frames[-1].timestamp,
         interface.missing_roles(),
+        request_timeout(interface),
     )

@@ -3,9 +3,10 @@ envelope).
 
 The ECU applies a request only while the stream of requests is healthy: a frame whose checksum
 is wrong, or whose alive counter does not advance by exactly one from the last accepted frame, is
-dropped; and when no valid frame has arrived for :data:`REQUEST_TIMEOUT_S` of bus time, or the
-last valid frame has TestEnable = 0, the test torque is zero. After a timeout the next valid frame
-is accepted whatever its counter (the stream restarted).
+dropped; and when no valid frame has arrived for the signal map's ``timeout_s`` of bus time
+(:data:`dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` unless the map gives it), or the last valid frame has
+TestEnable = 0, the test torque is zero. After a timeout the next valid frame is accepted whatever
+its counter (the stream restarted).
 """
 
 from __future__ import annotations
@@ -18,9 +19,6 @@ import can
 from dbc.checksum import verify_checksum
 from dbc.interface import VehicleInterface
 
-REQUEST_TIMEOUT_S = 0.05
-"""Bus time without a valid request after which the ECU applies zero test torque, s (five request
-periods of 10 ms)."""
 COUNTER_MODULO = 16
 """The alive counter's wrap (4 bits in the product DBC)."""
 
@@ -34,7 +32,7 @@ class RequestReceiver:
     interface
         DBC and signal map the requests are decoded with.
     timeout_s
-        :data:`REQUEST_TIMEOUT_S` unless given.
+        The signal map's ``timeout_s`` of the test torque unless given, s.
 
     Attributes
     ----------
@@ -45,7 +43,7 @@ class RequestReceiver:
     """
 
     interface: VehicleInterface
-    timeout_s: float = REQUEST_TIMEOUT_S
+    timeout_s: float | None = None
     dropped: Counter[str] = field(default_factory=Counter)
     accepted: int = 0
     _value_nm: float = 0.0
@@ -56,6 +54,8 @@ class RequestReceiver:
         self._key = self.interface.frame_key("test_torque")
         self._checksum = self.interface.checks_checksum("test_torque")
         spec = self.interface.signal_map.roles["test_torque"]
+        if self.timeout_s is None:
+            self.timeout_s = spec.timeout_s
         self._has_counter = bool(spec.counter)
         self._has_enable = bool(spec.enable)
 

@@ -20,6 +20,7 @@ from dbc import (
     load_signal_map,
     verify_checksum,
 )
+from dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import ConfigError, DbcError
 
 PRODUCT_MESSAGES = {
@@ -361,12 +362,32 @@ def test_partial_map_reports_missing_roles(tmp_path, database):
             '[mean_torque]\nmessage = "A"\nsignal = "B"\nscale = true\n',
             r"key 'scale' must be a number, got boolean",
         ),
+        (
+            '[speed]\nmessage = "A"\nsignal = "B"\ntimeout_s = 0.05\n',
+            r"role 'speed' has unknown key 'timeout_s'",
+        ),
+        (
+            '[test_torque]\nmessage = "A"\nsignal = "B"\ntimeout_s = 0\n',
+            r"key 'timeout_s' must be a number of seconds > 0, got integer 0",
+        ),
+        (
+            '[test_torque]\nmessage = "A"\nsignal = "B"\ntimeout_s = "50 ms"\n',
+            r"key 'timeout_s' must be a number of seconds > 0, got string",
+        ),
         ("[speed\n", r"map.toml is not valid TOML"),
     ],
 )
 def test_signal_map_errors(tmp_path, text, match):
     with pytest.raises(ConfigError, match=match):
         load_signal_map(write_map(tmp_path, text))
+
+
+def test_request_timeout_is_the_default_unless_the_map_gives_it(tmp_path):
+    text = '[test_torque]\nmessage = "A"\nsignal = "B"\n'
+    default = load_signal_map(write_map(tmp_path, text)).roles["test_torque"]
+    assert default.timeout_s == DEFAULT_REQUEST_TIMEOUT_S
+    given = load_signal_map(write_map(tmp_path, text + "timeout_s = 0.2\n")).roles["test_torque"]
+    assert given.timeout_s == 0.2
 
 
 def test_missing_signal_map(tmp_path):

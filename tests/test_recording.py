@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -9,12 +10,15 @@ import pytest
 
 from acquisition.logfile import write_log
 from dbc.loader import load_interface
+from dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from identification.frf import FrfEstimate, estimate_frf
 from identification.recording import _in_time_order, load_recording
 from identification.runs import find_runs
+from identification.testdata import Series
 from simulator.chirp import TestPlan
 from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationResult, simulate
+from simulator.simulate import SimulationOptions, SimulationResult, replay_batch, simulate
+from simulator.simulate import test_requests as plan_requests
 from simulator.vehicle_frames import simulation_frames
 
 DATA = Path(__file__).parent / "data"
@@ -97,3 +101,53 @@ def test_frames_out_of_time_order_are_sorted(
     expected = interface.decode(frames)["speed"]
     np.testing.assert_array_equal(fixed.timestamps, np.round(expected.timestamps, 6))
     np.testing.assert_array_equal(fixed.values, expected.values)
+
+
+def test_a_pause_in_the_requests_is_read_as_the_ecu_applied_it(
+    reference: DrivetrainParameters, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The tool stalls for 0.3 s mid-chirp: its log holds no requests then, and the ECU applied
+    the last one for its timeout and zero after. The recording's test torque is what the ECU
+    applied, so the FRF is the one of the plant's true input; holding the last request (what
+    the log alone says) gives another."""
+    plan = TestPlan(amplitudes_nm=(10.0,), duration_s=20.0)
+    t, value = plan_requests(plan)
+    stall = (t > plan.settle_s + 8.0) & (t < plan.settle_s + 8.3)
+    last = np.flatnonzero(stall)[0] - 1
+    applied_t = np.insert(t[~stall], last + 1, t[last] + DEFAULT_REQUEST_TIMEOUT_S)
+    applied = np.insert(value[~stall], last + 1, 0.0)
+    options = SimulationOptions.clean()
+    batch = replay_batch(
+        reference.as_array()[None], applied_t, applied, np.ones(1), plan.end_s, options
+    )
+    result = SimulationResult.from_outputs(
+        batch.speed[0, : batch.n_speed[0]],
+        batch.torque[0, : batch.n_torque[0]],
+        (t[~stall], value[~stall]),
+        reference,
+        plan,
+        options,
+    )
+    path = tmp_path / "stalled.blf"
+    write_log(path, simulation_frames(result, load_interface()))
+    with caplog.at_level("WARNING"):
+        data = load_recording(path, load_interface()).test_data()
+    assert "1 pause(s) in the test-torque requests" in caplog.text
+    times, values = data.test_torque.t, data.test_torque.value
+    dropped = np.flatnonzero(
+        np.isclose(np.diff(times), DEFAULT_REQUEST_TIMEOUT_S, atol=1e-6)
+        & (values[1:] == 0.0)
+        & (values[:-1] != 0.0)
+    )
+    assert len(dropped) == 1  # zero from the timeout on, to the next request 0.25 s later
+    assert times[dropped[0] + 2] - times[dropped[0] + 1] == pytest.approx(0.25, abs=0.011)
+
+    def frf_with(requests: Series) -> np.ndarray:
+        test = dataclasses.replace(data, test_torque=requests)
+        return estimate_frf(test, find_runs(test.test_torque)[0]).drv_db
+
+    read = frf_with(data.test_torque)
+    true = frf_with(Series(applied_t, applied))
+    held = frf_with(Series(t[~stall], value[~stall]))
+    np.testing.assert_allclose(read, true, atol=0.01)
+    assert np.abs(held - true).max() > 0.1

@@ -12,8 +12,9 @@ import pytest
 
 from dbc.checksum import verify_checksum
 from dbc.loader import load_interface
+from dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from simulator.chirp import TestPlan
-from simulator.ecu_requests import REQUEST_TIMEOUT_S, RequestReceiver
+from simulator.ecu_requests import RequestReceiver
 from simulator.parameters import reference_parameters
 from simulator.plant_stepper import PlantStepper
 from simulator.simulate import SimulationOptions, simulate
@@ -74,8 +75,8 @@ def test_receiver_drops_bad_checksum_and_stuck_counter():
 def test_receiver_times_out_to_zero_and_resynchronises():
     receiver = RequestReceiver(INTERFACE)
     receiver.receive(request(4.0, 7), now_s=1.0)
-    assert receiver.test_torque(1.0 + 0.9 * REQUEST_TIMEOUT_S) == pytest.approx(4.0)
-    assert receiver.test_torque(1.0 + REQUEST_TIMEOUT_S + 1e-3) == 0.0
+    assert receiver.test_torque(1.0 + 0.9 * DEFAULT_REQUEST_TIMEOUT_S) == pytest.approx(4.0)
+    assert receiver.test_torque(1.0 + DEFAULT_REQUEST_TIMEOUT_S + 1e-3) == 0.0
     receiver.receive(request(5.0, 2), now_s=2.0)  # any counter after a timeout
     assert receiver.test_torque(2.0) == pytest.approx(5.0)
 
