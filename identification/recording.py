@@ -19,6 +19,8 @@ from identification.testdata import Series, TestData
 
 logger = logging.getLogger(__name__)
 
+_pauses_reported: dict[Path, int] = {}
+"""Request pauses already reported per recording (a live session's is read again and again)."""
 TIME_DECIMALS = 6
 TIME_RESOLUTION_S = 10.0**-TIME_DECIMALS
 """Resolution of recording times, s: what ASC and candump logs store (BLF stores ns)."""
@@ -95,8 +97,8 @@ class Recording:
             value = np.where(enable == 0, 0.0, value)
         timeout = self.request_timeout_s
         pauses = np.flatnonzero(np.diff(t) > timeout)
-        if len(pauses):
-            longest = float(np.max(np.diff(t)[pauses]))
+        if len(pauses) > _pauses_reported.get(self.path, 0):
+            _pauses_reported[self.path] = len(pauses)  # the worker re-reads a growing session
             logger.warning(
                 "%s: %d pause(s) in the test-torque requests longer than the ECU's timeout "
                 "(%.3f s; the longest %.3f s); the test torque is taken as zero after the "
@@ -104,7 +106,7 @@ class Recording:
                 self.path,
                 len(pauses),
                 timeout,
-                longest,
+                float(np.max(np.diff(t)[pauses])),
             )
         ends = np.append(pauses, len(t) - 1) if len(t) else pauses
         return Series(np.insert(t, ends + 1, t[ends] + timeout), np.insert(value, ends + 1, 0.0))
