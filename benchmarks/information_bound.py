@@ -68,6 +68,9 @@ def main() -> None:
         help="the recordings' combustion variation and sensor noise (default: 0.03 0.3 0.3)",
     )
     parser.add_argument(
+        "--model-seed", type=int, default=0, help="seed of the model's combustion draws"
+    )
+    parser.add_argument(
         "--plain",
         action="store_true",
         help="model realizations with independent draws, not antithetic pairs",
@@ -102,7 +105,7 @@ def main() -> None:
         Objective(par, [t.model_test(runs)], [[t.estimates[i].drv_db for i in runs]])
         for t, runs in zip(selection.tests, selection.runs, strict=True)
     ]
-    changes: dict[str, object] = {}
+    changes: dict[str, object] = {"seed": args.model_seed}
     if args.realizations:
         changes["realizations"] = args.realizations
     if args.plain:
