@@ -80,6 +80,11 @@ def main() -> None:
         help="fix the model's combustion variation (default: as measured at idle)",
     )
     parser.add_argument(
+        "--idle-variation",
+        action="store_true",
+        help="fit with the combustion variation as measured at idle (sensor noise included)",
+    )
+    parser.add_argument(
         "--noise-seed", type=int, help="seed of the recording's noise (default: 100 + truth)"
     )
     parser.add_argument(
@@ -97,6 +102,7 @@ def main() -> None:
         generations=args.generations,
         polish_evaluations=args.polish,
         newton_iterations=args.newton,
+        separate_sensor_noise=not args.idle_variation,
         seed=args.seed,
     )
     began = time.perf_counter()
@@ -122,6 +128,10 @@ def main() -> None:
     print(
         f"stroke lag {1000 * result.stroke_lag_s:.1f} ms; stages: "
         + ", ".join(f"{k} {n} sets in {sec:.1f} s" for k, (n, sec) in result.stages.items())
+    )
+    print(
+        f"combustion variation: {measured.combustion_variation:.4f} at idle, "
+        f"{report.fit.tests[0].combustion_variation:.4f} in the fit"
     )
     print(f"fit NRMSE {result.fit_nrmse}, validation NRMSE {result.validation_nrmse}")
     print(

@@ -173,8 +173,10 @@ class IdentificationReport:
     variation_without_noise
         Per recording, the combustion variation with the torque sensor's noise taken out,
         judged at the identified parameters
-        (:meth:`identification.test_setup.MeasuredTest.without_sensor_noise`): a diagnostic
-        for ``--fix combustion_variation=``, not used by the fit (README, *Accuracy*).
+        (:meth:`identification.test_setup.MeasuredTest.without_sensor_noise`); the fit used
+        the same estimate judged at the best parameters of its first stage
+        (:attr:`identification.identify.SearchSettings.separate_sensor_noise`), unless
+        ``--fix combustion_variation=`` gave the value.
     """
 
     identification: Identification
@@ -345,14 +347,18 @@ def identify_runs(
     )
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds)
     starts = start_thetas(selection.estimates(), prior)
+    settings = settings or SearchSettings()
+    if "combustion_variation" in operating:  # the engineer's value stands
+        settings = dataclasses.replace(settings, separate_sensor_noise=False)
     result = identify(tests, par, ident, [[] for _ in tests], settings, progress, starts=starts)
-    without_noise = {  # a diagnostic: too scattered on a few seconds of idle to fit with
+    selection = with_variation(selection, result.combustion_variation)
+    tests = selection.tests
+    without_noise = {  # judged at the final parameters, the fit's after stage 1
         t.name: t.without_sensor_noise(result.parameters.as_array()).combustion_variation
         for t in tests
     }
     profiles: dict[str, Profile] = {}
     if profile_points:
-        settings = settings or SearchSettings()
         measured_db = [e.drv_db for e in selection.estimates()]
         objective = Objective(
             par,
