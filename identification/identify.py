@@ -372,6 +372,13 @@ def identify(
             objective, lag_tally, stages["polish"] = (
                 o.with_variations(variations) for o in (objective, lag_tally, stages["polish"])
             )
+            separated = {t.name: v for (t, _), v in zip(used, variations, strict=True)}
+            tests = [  # the fit and validation NRMSE below score what was fitted
+                dataclasses.replace(t, combustion_variation=separated[t.name])
+                if t.name in separated
+                else t
+                for t in tests
+            ]
         step = settings.polish_step
         polished = [
             _polish(stages["polish"], member, settings.polish_evaluations, step, progress)

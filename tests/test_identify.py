@@ -16,6 +16,8 @@ from identification.identify import (
     split_runs,
     stroke_lag,
 )
+from identification.model_response import model_drv_db
+from identification.objective import nrmse
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
 from identification.pipeline import run_identification
 from identification.start_values import start_thetas
@@ -144,6 +146,18 @@ def test_reference_vehicle_from_a_noisy_recording(reference: DrivetrainParameter
     for name in ("d12", "d23", "Tc12"):
         assert result.theta[name] == pytest.approx(truth[name], rel=0.2), name
     assert result.validation_nrmse["reference @ 2 N*m"] < 0.2
+    # the fit used the variation without the sensor's noise, and its NRMSE scores just that
+    fitted = report.fit.tests[0]
+    assert 0.027 < fitted.combustion_variation < measured.combustion_variation
+    params = result.parameters.as_array()[None]
+    curves = model_drv_db(
+        params, fitted.model_test(report.fit.runs[0], stroke_lag_s=result.stroke_lag_s)
+    )
+    rescored = sum(
+        float(nrmse(fitted.estimates[i].drv_db, db)[0])
+        for i, db in zip(report.fit.runs[0], curves, strict=True)
+    )
+    assert rescored == pytest.approx(result.objective, rel=1e-9)
 
 
 def test_the_stroke_stamps_lag_is_found(
