@@ -107,6 +107,12 @@ def main() -> None:
         help="fix the model's combustion variation (default: as measured at idle)",
     )
     parser.add_argument(
+        "--global-realizations",
+        type=int,
+        default=SearchSettings().global_realizations,
+        help="model realizations per parameter set in the global search",
+    )
+    parser.add_argument(
         "--idle-variation",
         action="store_true",
         help="fit with the combustion variation as measured at idle (sensor noise included)",
@@ -130,6 +136,7 @@ def main() -> None:
         polish_evaluations=args.polish,
         newton_iterations=args.newton,
         separate_sensor_noise=not args.idle_variation,
+        global_realizations=args.global_realizations,
         seed=args.seed,
     )
     began = time.perf_counter()
