@@ -374,9 +374,9 @@ def identify(
             )
             separated = {t.name: v for (t, _), v in zip(used, variations, strict=True)}
             tests = [  # the fit and validation NRMSE below score what was fitted
-                dataclasses.replace(t, combustion_variation=separated[t.name])
-                if t.name in separated
-                else t
+                dataclasses.replace(
+                    t, combustion_variation=separated.get(t.name, t.combustion_variation)
+                )
                 for t in tests
             ]
         step = settings.polish_step
