@@ -104,7 +104,8 @@ def _describe(t: np.ndarray, value: np.ndarray) -> ChirpRun | None:
     frac = np.where(v1 != v0, v0 / (v0 - v1), 0.5)
     t_cross = t[cross] + frac * (t[cross + 1] - t[cross])
     half_periods = np.diff(t_cross)
-    frequency = 0.5 / half_periods
+    with np.errstate(divide="ignore"):  # a request pause's zero sample is crossed twice at once
+        frequency = 0.5 / half_periods
     t_mid = 0.5 * (t_cross[1:] + t_cross[:-1])
     # a sender that stalled leaves a hole in the requests, then catches up in a burst: a half
     # period across either has the wrong length (a least-squares line through them gave f1 < 0)
@@ -113,8 +114,11 @@ def _describe(t: np.ndarray, value: np.ndarray) -> ChirpRun | None:
     irregular = (spacing > MAX_SPACING * typical) | (spacing < typical / MAX_SPACING)
     breaks = np.concatenate(([0], np.cumsum(irregular)))
     whole = breaks[cross[1:] + 1] == breaks[cross[:-1]]
-    if np.count_nonzero(whole) >= MIN_HALF_PERIODS:
-        t_mid, frequency = t_mid[whole], frequency[whole]
+    finite = np.isfinite(frequency)
+    if np.count_nonzero(whole & finite) >= MIN_HALF_PERIODS:
+        t_mid, frequency = t_mid[whole & finite], frequency[whole & finite]
+    else:
+        t_mid, frequency = t_mid[finite], frequency[finite]
     # Theil-Sen, robust to the irregular half periods this cannot see (jitter within the bounds)
     slope, intercept, _, _ = stats.theilslopes(frequency, t_mid)
     start, end = float(t[0]), float(t[-1])

@@ -43,6 +43,25 @@ def test_holes_in_the_requests_do_not_bend_the_sweep() -> None:
     assert run.f2_hz == pytest.approx(15.0, abs=0.05)
 
 
+def test_holes_read_as_the_ecu_applied_them_do_not_bend_the_sweep() -> None:
+    """The same holes with the test torque zero from the ECU's timeout on (as a recording is
+    read, :mod:`identification.recording`): a zero sample is crossed twice at one instant, and
+    the sweep is still found as sent, without a division by zero on the way."""
+    plan = TestPlan(amplitudes_nm=(2.0,), f1_hz=1.0, f2_hz=15.0, duration_s=60.0)
+    t = np.arange(0.0, plan.end_s, plan.request_period_s)
+    value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
+    t0 = plan.chirps[0].start_s
+    for start, length in ((14.0, 0.31), (27.5, 0.17), (41.0, 0.24), (52.3, 0.12), (55.0, 0.3)):
+        hole = (t >= t0 + start) & (t < t0 + start + length)
+        last = np.flatnonzero(hole)[0] - 1
+        t, value = t[~hole], value[~hole]
+        t, value = np.insert(t, last + 1, t[last] + 0.05), np.insert(value, last + 1, 0.0)
+    with np.errstate(all="raise"):
+        (run,) = find_runs(Series(t, value))
+    assert run.f1_hz == pytest.approx(1.0, abs=0.05)
+    assert run.f2_hz == pytest.approx(15.0, abs=0.05)
+
+
 def test_bursts_of_a_sender_catching_up_do_not_bend_the_sweep() -> None:
     """A sender 100 ms late 25 times in a 30 s chirp, each time catching up in a burst of frames
     1e-4 s apart (the values are the slots', the times the sending's): the sweep is still found
