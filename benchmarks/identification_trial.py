@@ -21,8 +21,6 @@ import time
 import numpy as np
 
 from identification.identify import Objective, SearchSettings, refine
-from identification.model_response import model_drv_db
-from identification.objective import nrmse
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
 from identification.pipeline import IdentificationReport, run_identification
 from identification.test_setup import MeasuredTest
@@ -41,21 +39,6 @@ def draw_truth(index: int) -> DrivetrainParameters:
         return reference
     factors = np.random.default_rng(index).uniform(1 - TRUTH_SPREAD, 1 + TRUTH_SPREAD, 10)
     return DrivetrainParameters.from_array(reference.as_array() * np.r_[factors, 1.0, 1.0])
-
-
-def objective_at(truth: DrivetrainParameters, report: IdentificationReport) -> float:
-    """Eq. (17) of a parameter set on the report's identification runs, with its stroke lag and
-    its K and T_loss."""
-    params = truth.replace(K=report.gain, T_loss=report.t_loss).as_array()[None]
-    lag = report.identification.stroke_lag_s
-    total = 0.0
-    for test, runs in zip(report.fit.tests, report.fit.runs, strict=True):
-        curves = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
-        total += sum(
-            float(nrmse(test.estimates[i].drv_db, db)[0])
-            for i, db in zip(runs, curves, strict=True)
-        )
-    return total
 
 
 def nearest_optimum(
@@ -171,7 +154,7 @@ def main() -> None:
     nearest, nearest_value = nearest_optimum(truth, report, settings)
     print(
         f"eq. (17): {result.objective:.4f} at the optimum found, "
-        f"{objective_at(truth, report):.4f} at the truth, "
+        f"{report.fit_objective(truth):.4f} at the truth, "
         f"{nearest_value:.4f} at the optimum nearest the truth"
     )
     for name in THETA_NAMES:

@@ -205,6 +205,31 @@ class IdentificationReport:
         result = dataclasses.replace(self.identification, validation_nrmse=scores)
         return dataclasses.replace(self, identification=result, validation=selection)
 
+    def fit_objective(self, parameters: DrivetrainParameters) -> float:
+        """Eq. (17) of another parameter set on this report's identification runs, scored as the
+        identified one was: the same stroke lag, combustion variation, K and T_loss.
+
+        Below the report's own ``objective``, the search missed a better fit; above it, the data
+        prefer what was found (a simulated truth's, for example: its noise's scatter).
+
+        Parameters
+        ----------
+        parameters
+            The set to score; its K and T_loss are replaced by the report's.
+        """
+        if self.fit is None:
+            raise ValueError("the report holds no identification runs to score a set on")
+        params = parameters.replace(K=self.gain, T_loss=self.t_loss).as_array()[None]
+        lag = self.identification.stroke_lag_s
+        total = 0.0
+        for test, runs in zip(self.fit.tests, self.fit.runs, strict=True):
+            curves = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
+            total += sum(
+                float(nrmse(test.estimates[i].drv_db, db)[0])
+                for i, db in zip(runs, curves, strict=True)
+            )
+        return total
+
     def fit_curves(self) -> tuple[list[FrfEstimate], list[np.ndarray], list[str]]:
         """Measured FRFs, the identified model's |G_DRV| (dB) and the role of each run (Fig. 6)."""
         params = self.identification.parameters.as_array()[None]

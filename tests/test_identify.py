@@ -16,8 +16,6 @@ from identification.identify import (
     split_runs,
     stroke_lag,
 )
-from identification.model_response import model_drv_db
-from identification.objective import nrmse
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
 from identification.pipeline import run_identification
 from identification.start_values import start_thetas
@@ -149,15 +147,7 @@ def test_reference_vehicle_from_a_noisy_recording(reference: DrivetrainParameter
     # the fit used the variation without the sensor's noise, and its NRMSE scores just that
     fitted = report.fit.tests[0]
     assert 0.027 < fitted.combustion_variation < measured.combustion_variation
-    params = result.parameters.as_array()[None]
-    curves = model_drv_db(
-        params, fitted.model_test(report.fit.runs[0], stroke_lag_s=result.stroke_lag_s)
-    )
-    rescored = sum(
-        float(nrmse(fitted.estimates[i].drv_db, db)[0])
-        for i, db in zip(report.fit.runs[0], curves, strict=True)
-    )
-    assert rescored == pytest.approx(result.objective, rel=1e-9)
+    assert report.fit_objective(result.parameters) == pytest.approx(result.objective, rel=1e-9)
 
 
 def test_the_stroke_stamps_lag_is_found(
@@ -209,6 +199,11 @@ def test_a_known_combustion_variation_replaces_the_idle_estimate(
     assert sum(known.identification.fit_nrmse.values()) < 0.95 * sum(
         idle.identification.fit_nrmse.values()
     )
+    # scored again, the result gives the identification's own eq. (17) (its own values: the
+    # truth, rebuilt from the mass ratios, differs in a last bit, and with free play that is
+    # another draw of the model: eq. (17) 0.07364 against 0.07357)
+    result = idle.identification
+    assert idle.fit_objective(result.parameters) == pytest.approx(result.objective, rel=1e-9)
     assert known.validation is not None
     assert {t.combustion_variation for t in known.validation.tests} == {0.03}
     assert known.as_dict()["combustion_variation"] == {"reference": 0.03}

@@ -21,6 +21,9 @@ import dbc
 from acquisition.logfile import read_log
 from dbc.loader import load_interface
 from dtid.cli import main as dtid
+from dtid.commands.common import measured_tests
+from identification.identify import SearchSettings
+from identification.pipeline import run_identification
 from simulator.parameters import reference_parameters
 
 pytestmark = pytest.mark.hil
@@ -35,7 +38,9 @@ def sections(**test: float) -> dict[str, dict[str, float]]:
     return {"bus": {"time_factor": SPEEDUP}, "test": test, "safety": SAFETY}
 
 
-BUDGET = ["--generations", "12", "--polish-evaluations", "300", "--profile-points", "0"]
+SEARCH = SearchSettings(generations=12, polish_evaluations=300)
+BUDGET = ["--generations", str(SEARCH.generations), "--polish-evaluations"]
+BUDGET += [str(SEARCH.polish_evaluations), "--profile-points", "0"]
 TOLERANCE = {"J1": 0.05, "J2": 0.05, "J3": 0.05, "c12": 0.05, "c23": 0.05, "eps12": 0.1}
 TOLERANCE |= {"d12": 0.2, "d23": 0.2, "K": 0.05}
 """Issue 3's offline tolerances, except the DMF play's: 30 s chirps carry half the data of the
@@ -115,9 +120,6 @@ def test_live_identification_survives_a_worker_restart_and_equals_the_replay(
         if name in live["parameters"]
     }
     print("live identification, relative errors:", {k: f"{v:+.3f}" for k, v in errors.items()})
-    context = (live["nrmse"], report, summary["worker_err"][-2000:])
-    for name, tolerance in TOLERANCE.items():
-        assert abs(errors[name]) <= tolerance, (name, errors[name], context)
     # the daemon's own log, identified offline, gives the same parameters
     log = next(session.glob("*.blf"))
     offline_json = tmp_path / "offline.json"
@@ -125,6 +127,20 @@ def test_live_identification_survives_a_worker_restart_and_equals_the_replay(
     offline = json.loads(offline_json.read_text())
     for name, value in live["parameters"].items():
         assert offline["parameters"][name] == pytest.approx(value, rel=1e-9), name
+    misses = {name: errors[name] for name, limit in TOLERANCE.items() if abs(errors[name]) > limit}
+    if misses:
+        context = (live["nrmse"], report, summary["worker_err"][-2000:])
+        pytest.fail(f"{misses} beyond {TOLERANCE}; {fit_at_truth(log)}; {context}")
+
+
+def fit_at_truth(log: Path) -> str:
+    """Eq. (17) at the identified parameters and at the truth, the log identified again: a
+    truth that fits better says the search missed it, one that fits worse that these data
+    prefer what was found (their scatter, or a fault in how they were recorded)."""
+    tests = measured_tests([log], None, None)
+    report = run_identification(tests, reference_parameters(), settings=SEARCH, profile_points=0)
+    truth = report.fit_objective(reference_parameters())
+    return f"eq. (17) {report.identification.objective:.4f} at the result, {truth:.4f} at the truth"
 
 
 def test_daemon_killed_mid_chirp_the_vehicle_drops_the_request_within_100_ms(
