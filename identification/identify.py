@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -265,15 +265,38 @@ def engine_gain(tests: Sequence[MeasuredTest]) -> float:
     return float(np.mean(gains))
 
 
+AMPLITUDE_MATCH = 0.05
+"""Runs whose amplitudes differ by at most this fraction are at one amplitude (the peak of a
+sampled, quantised request varies a little from recording to recording)."""
+
+
+def amplitude_levels(amplitudes: Iterable[float]) -> list[float]:
+    """The distinct amplitudes among runs, ascending, N*m: runs within :data:`AMPLITUDE_MATCH`
+    of a level's smallest are one level, given as their mean."""
+    levels: list[list[float]] = []
+    for amplitude in sorted(amplitudes):
+        if levels and amplitude <= (1 + AMPLITUDE_MATCH) * levels[-1][0]:
+            levels[-1].append(amplitude)
+        else:
+            levels.append([amplitude])
+    return [float(np.mean(level)) for level in levels]
+
+
+def _at_level(amplitude: float, chosen: Sequence[float]) -> bool:
+    return any(abs(amplitude - a) <= AMPLITUDE_MATCH * a for a in chosen)
+
+
 def split_runs(
     tests: Sequence[MeasuredTest], identify_amplitudes: Sequence[float] | None = None
 ) -> tuple[list[list[int]], list[list[int]]]:
     """Indices of the identification and validation runs of each recording.
 
     By default the two largest amplitudes identify and the others validate (the paper: 5 and
-    10 N*m identify, 2 N*m validates). Amplitudes match within 5 %. A run without an FRF
-    (:attr:`identification.test_setup.MeasuredTest.unusable`) counts in the choice of the
-    amplitudes: at an identifying amplitude it is an error, else it is left out with a warning.
+    10 N*m identify, 2 N*m validates); amplitudes are levels (:func:`amplitude_levels`), so two
+    recordings whose 10 N*m peaks read 9.998 and 10.000 N*m still identify from 5 and 10. A run
+    without an FRF (:attr:`identification.test_setup.MeasuredTest.unusable`) counts in the
+    choice of the amplitudes: at an identifying amplitude it is an error, else it is left out
+    with a warning.
 
     Raises
     ------
@@ -281,12 +304,12 @@ def split_runs(
         If no run identifies, or a run that should cannot give an FRF.
     """
     runs = [e.run for t in tests for e in t.estimates] + [r for t in tests for r, _ in t.unusable]
-    amplitudes = sorted({round(run.amplitude_nm, 3) for run in runs})
-    chosen = list(identify_amplitudes) if identify_amplitudes else amplitudes[-2:]
+    levels = amplitude_levels(run.amplitude_nm for run in runs)
+    chosen = list(identify_amplitudes) if identify_amplitudes else levels[-2:]
     ident, valid = [], []
     for test in tests:
         for run, reason in test.unusable:
-            if any(abs(run.amplitude_nm - a) <= 0.05 * a for a in chosen):
+            if _at_level(run.amplitude_nm, chosen):
                 raise AnalysisError(
                     f"{test.name}: the {run.amplitude_nm:g} N*m run identifies but cannot give "
                     f"an FRF: {reason}"
@@ -298,15 +321,13 @@ def split_runs(
                 run.start_s,
                 reason,
             )
-        picks = [
-            i
-            for i, e in enumerate(test.estimates)
-            if any(abs(e.run.amplitude_nm - a) <= 0.05 * a for a in chosen)
-        ]
+        picks = [i for i, e in enumerate(test.estimates) if _at_level(e.run.amplitude_nm, chosen)]
         ident.append(picks)
         valid.append([i for i in range(len(test.estimates)) if i not in picks])
     if not any(ident):
-        raise AnalysisError(f"no chirp run has an amplitude among {chosen} N*m")
+        raise AnalysisError(
+            f"no chirp run has an amplitude among {', '.join(f'{a:g}' for a in chosen)} N*m"
+        )
     return ident, valid
 
 

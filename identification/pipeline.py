@@ -20,20 +20,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.errors import ConfigError
+from identification.analytic import inseparable
 from identification.frf import DEFAULT_RESOLUTION_HZ, FrfEstimate
 from identification.identify import (
     Identification,
     Objective,
     Progress,
     SearchSettings,
+    amplitude_levels,
     engine_gain,
     identify,
     split_runs,
 )
 from identification.model_response import model_drv_db
 from identification.objective import nrmse
-from identification.parameterization import THETA_UNITS, Parameterization
-from identification.profile import Profile, profile
+from identification.parameterization import PRIOR_SPAN, THETA_UNITS, Parameterization
+from identification.profile import Profile, profile, with_structure
 from identification.runs import ZERO_FRACTION
 from identification.start_values import start_thetas
 from identification.test_setup import MeasuredTest
@@ -177,6 +179,11 @@ class IdentificationReport:
         the same estimate judged at the best parameters of its first stage
         (:attr:`identification.identify.SearchSettings.separate_sensor_noise`), unless
         ``--fix combustion_variation=`` gave the value.
+    inseparable
+        The free parameters the identification's excitation cannot identify, whatever their
+        profiles show, with the reason (:func:`identification.analytic.inseparable`: a
+        stiffness and its free play from one amplitude); their verdict is ``no``, with or
+        without profiles.
     """
 
     identification: Identification
@@ -187,6 +194,7 @@ class IdentificationReport:
     fit: RunSelection | None = None
     validation: RunSelection | None = None
     variation_without_noise: Mapping[str, float] = dataclasses.field(default_factory=dict)
+    inseparable: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
     def validated(self, selection: RunSelection) -> IdentificationReport:
         """The report with the validation NRMSE of the identified parameters on these runs, the
@@ -260,7 +268,9 @@ class IdentificationReport:
             "units": {**THETA_UNITS, "J1": "kg*m^2", "J2": "kg*m^2", "J3": "kg*m^2", "K": "1"},
             "intervals": intervals,
             "nrmse": {"fit": result.fit_nrmse, "validation": result.validation_nrmse},
-            "identifiable": {name: prof.verdict for name, prof in self.profiles.items()},
+            "identifiable": {name: prof.verdict for name, prof in self.profiles.items()}
+            | {name: "no" for name in self.inseparable},
+            "identifiability_notes": dict(self.inseparable),
             "fixed": dict(self.fixed),
             "T_loss": self.t_loss,
             "combustion_variation": {t.name: t.combustion_variation for t in self.fit.tests}
@@ -305,6 +315,7 @@ def run_identification(
     profile_points: int = 5,
     progress: Progress | None = None,
     resolution_hz: float = DEFAULT_RESOLUTION_HZ,
+    span: float = PRIOR_SPAN,
 ) -> IdentificationReport:
     """Identify from measured tests, profile every free parameter and validate.
 
@@ -313,11 +324,11 @@ def run_identification(
     tests
         The recordings' tests.
     prior
-        Centre of the default +-100 % bounds and source of start values the data do not give.
+        Centre of the bounds and source of start values the data do not give.
     fixed
         Values to hold, by setup-4 name or K / T_loss.
     bounds
-        Explicit bounds by setup-4 name.
+        Explicit bounds by setup-4 name, SI units.
     identify_amplitudes
         Amplitudes that identify (default: the two largest); the rest validate.
     settings
@@ -328,9 +339,14 @@ def run_identification(
         Progress callback.
     resolution_hz
         Welch resolution the tests were estimated with.
+    span
+        Relative half-width of the bounds around the prior where ``bounds`` names none (1 is
+        the paper's +-100 %).
     """
     selection = identification_runs(tests, identify_amplitudes, resolution_hz)
-    report = identify_runs(selection, prior, fixed, bounds, settings, profile_points, progress)
+    report = identify_runs(
+        selection, prior, fixed, bounds, settings, profile_points, progress, span
+    )
     return report.validated(validation_runs(tests, identify_amplitudes, resolution_hz))
 
 
@@ -342,6 +358,7 @@ def identify_runs(
     settings: SearchSettings | None = None,
     profile_points: int = 5,
     progress: Progress | None = None,
+    span: float = PRIOR_SPAN,
 ) -> IdentificationReport:
     """Identify from held-out identification runs and profile; no validation yet.
 
@@ -370,7 +387,7 @@ def identify_runs(
         if "T_loss" in operating
         else float(np.mean([t.idle_torque_nm for t in tests]))
     )
-    par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds)
+    par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds, span=span)
     starts = start_thetas(selection.estimates(), prior)
     settings = settings or SearchSettings()
     if "combustion_variation" in operating:  # the engineer's value stands
@@ -382,6 +399,11 @@ def identify_runs(
         t.name: t.without_sensor_noise(result.parameters.as_array()).combustion_variation
         for t in tests
     }
+    reasons = inseparable(
+        par.free, len(amplitude_levels(e.run.amplitude_nm for e in selection.estimates()))
+    )
+    for reason in dict.fromkeys(reasons.values()):  # once per coupling
+        logger.warning("not identifiable from these data: %s", reason)
     profiles: dict[str, Profile] = {}
     if profile_points:
         measured_db = [e.drv_db for e in selection.estimates()]
@@ -407,10 +429,11 @@ def identify_runs(
             )
     return IdentificationReport(
         result,
-        profiles,
+        with_structure(profiles, reasons),
         {**fixed, **operating},
         gain,
         t_loss,
         fit=selection,
         variation_without_noise=without_noise,
+        inseparable=reasons,
     )

@@ -53,12 +53,15 @@ when the profile has a clear minimum but the interval stays open on a side (iden
 principle, not by these data); ``no`` when the profile is flat: it never crosses the threshold,
 or it climbs less than :data:`FLAT_RISE` inside the bounds on a side of its minimum (see
 :attr:`Profile.rise`), or, on a recording with combustion variation, less than
-:data:`NOISY_FLAT_RISE` on both.
+:data:`NOISY_FLAT_RISE` on both. What the excitation's structure decides comes before the
+profile (:func:`with_structure`): a stiffness and its free play from one amplitude are ``no``
+(eq. 22, :func:`identification.analytic.inseparable`), whatever interval the profile found.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import dataclasses
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -124,6 +127,8 @@ class Profile:
         (lower, upper) of the 95 % interval, None on a side where it does not close.
     verdict
         ``practical``, ``structural`` or ``no`` (see the module notes).
+    note
+        Why the verdict is not the profile's own (:func:`with_structure`); empty when it is.
     """
 
     name: str
@@ -133,6 +138,7 @@ class Profile:
     margin: np.ndarray
     interval: tuple[float | None, float | None]
     verdict: str
+    note: str = ""
 
     @property
     def rise(self) -> tuple[float, float]:
@@ -168,8 +174,31 @@ class Profile:
             "margin": self.margin.tolist(),
             "interval": {"lower": self.interval[0], "upper": self.interval[1]},
             "verdict": self.verdict,
+            "note": self.note,
             "rise": [rise if np.isfinite(rise) else None for rise in self.rise],
         }
+
+
+def with_structure(
+    profiles: Mapping[str, Profile], reasons: Mapping[str, str]
+) -> dict[str, Profile]:
+    """The profiles with the verdict ``no`` where the excitation's structure decides it.
+
+    Parameters
+    ----------
+    profiles
+        Profiles by parameter name.
+    reasons
+        Why a parameter cannot be identified from this excitation, by name
+        (:func:`identification.analytic.inseparable`); the profile's interval is kept as what
+        the model's exact shape allows, its verdict becomes ``no`` and the reason its note.
+    """
+    return {
+        name: dataclasses.replace(prof, verdict="no", note=reasons[name])
+        if name in reasons
+        else prof
+        for name, prof in profiles.items()
+    }
 
 
 def statistic(

@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from identification.analytic import inseparable
 from identification.frf import estimate_frf
-from identification.identify import Objective
+from identification.identify import Objective, amplitude_levels
 from identification.model_response import ModelTest
 from identification.parameterization import (
     MIN_INERTIA_FRACTION,
@@ -28,7 +29,7 @@ from identification.parameterization import (
     Parameterization,
     theta_from_parameters,
 )
-from identification.profile import Profile, profile
+from identification.profile import Profile, profile, with_structure
 from identification.runs import find_runs
 from identification.testdata import from_simulation
 from simulator.chirp import TestPlan
@@ -105,7 +106,10 @@ more than the default to be found."""
 def profile_setup(
     chosen: Setup, points: int = 7, seed: int = 0, duration_s: float = 60.0, refine: int = 0
 ) -> dict[str, Profile]:
-    """Simulate the setup's reference data and profile every free parameter around the truth."""
+    """Simulate the setup's reference data and profile every free parameter around the truth.
+
+    Setup 2's stiffness and free play get the verdict ``no`` of eq. (22) (one amplitude), as the
+    paper concludes, whatever their profiles' intervals."""
     plan = TestPlan(amplitudes_nm=chosen.amplitudes_nm, duration_s=duration_s)
     data = from_simulation(simulate(chosen.truth, plan, SimulationOptions.clean()))
     estimates = tuple(estimate_frf(data, run) for run in find_runs(data.test_torque))
@@ -128,7 +132,7 @@ def profile_setup(
     measured = [e.req_db if chosen.request_input else e.drv_db for e in estimates]
     objective = Objective(par, [test], [measured])
     optimum = par.unit(np.array([[theta[n] for n in THETA_NAMES]]), gain)[0]
-    return {
+    profiles = {
         name: profile(
             objective,
             measured,
@@ -142,3 +146,6 @@ def profile_setup(
         )
         for name in par.free
     }
+    return with_structure(
+        profiles, inseparable(par.free, len(amplitude_levels(chosen.amplitudes_nm)))
+    )

@@ -9,7 +9,12 @@ import pytest
 from scipy import integrate, optimize
 
 from dtid.errors import AnalysisError
-from identification.analytic import free_play_for, linearized_stiffness, stiffness_and_play
+from identification.analytic import (
+    free_play_for,
+    inseparable,
+    linearized_stiffness,
+    stiffness_and_play,
+)
 from simulator.couplings import dead_zone
 
 
@@ -48,3 +53,14 @@ def test_eq21_against_a_dead_zone_spring_in_quasi_static_loading() -> None:
     # and the energy it stores at the peak is that of the spring beyond the play only
     stored = integrate.quad(lambda d: c * dead_zone(d, eps / 2), 0, peak)[0]
     assert stored == pytest.approx(amplitude**2 / (2 * c), rel=1e-6)
+
+
+def test_one_amplitude_makes_each_free_spring_and_play_pair_inseparable() -> None:
+    setup4 = ("J_sum", "x1", "x12", "c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23")
+    reasons = inseparable(setup4, amplitude_levels=1)
+    assert set(reasons) == {"c12", "eps12", "c23", "eps23"}
+    assert reasons["c12"] == reasons["eps12"] != reasons["c23"]
+    assert "eq. 22" in reasons["c23"] and "two amplitudes" in reasons["c23"]
+    assert inseparable(setup4, amplitude_levels=2) == {}
+    # with the play fixed (or absent from the model) the stiffness alone is identifiable
+    assert set(inseparable(("c12", "d12", "c23", "eps23"), amplitude_levels=1)) == {"c23", "eps23"}

@@ -195,6 +195,8 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
         "2",
         "--profile-points",
         "3",
+        "--bounds",
+        "c12=150:450",
         "--json",
         str(out),
         "--plot",
@@ -202,6 +204,11 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
     ]
     assert main(argv) == 0
     document = json.loads(out.read_text())
+    assert 150 <= document["parameters"]["c12"] <= 450
+    assert all(
+        value is None or 150 <= value <= 450 for value in document["intervals"]["c12"].values()
+    )
+    assert document["identifiability_notes"] == {}  # two amplitudes separate c12 from eps12
     names = {"J_sum", "x1", "x12", "c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23"}
     assert set(document["parameters"]) == names | {"J1", "J2", "J3", "K"}
     assert set(document["intervals"]) == {"c12", "d12"}  # the free ones
@@ -217,6 +224,17 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
 def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "expected NAME=VALUE" in _error(capsys, ["identify", str(recording), "--fix", "J9=1"])
     assert "is not a number" in _error(capsys, ["identify", str(recording), "--fix", "c12=stiff"])
+
+
+def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    for bad in ("c12=100", "c99=1:2", "c12=low:high"):
+        message = _error(capsys, ["identify", str(recording), "--bounds", bad])
+        assert "expected NAME=LOWER:UPPER" in message, bad
+    message = _error(capsys, ["identify", str(recording), "--bounds", "c12=600:100"])
+    assert "bounds of c12 must satisfy 0 <= lower < upper" in message
+    with pytest.raises(SystemExit) as status:  # argparse's own usage error
+        main(["identify", str(recording), "--span", "0"])
+    assert status.value.code == 2 and "must be a number > 0" in capsys.readouterr().err
 
 
 def test_profile_needs_a_setup_or_recordings(

@@ -11,6 +11,7 @@ from dtid.errors import AnalysisError, ConfigError
 from identification.identify import (
     Objective,
     SearchSettings,
+    amplitude_levels,
     engine_gain,
     identify,
     split_runs,
@@ -41,6 +42,26 @@ def test_operating_point_and_split(softer_dmf: tuple) -> None:
     ident, valid = split_runs([measured])
     assert [measured.estimates[i].run.amplitude_nm for i in ident[0]] == pytest.approx([5, 10])
     assert [measured.estimates[i].run.amplitude_nm for i in valid[0]] == pytest.approx([2])
+
+
+def test_amplitudes_within_five_percent_are_one_level(softer_dmf: tuple) -> None:
+    assert amplitude_levels([10.0, 2.0, 4.998, 9.998, 5.002]) == pytest.approx([2, 5, 9.999])
+    assert amplitude_levels([5.0, 5.5]) == [5.0, 5.5]
+    # two recordings whose request peaks read a little apart still identify from 5 and 10 N*m
+    _, measured = softer_dmf
+    shifted = dataclasses.replace(
+        measured,
+        estimates=tuple(
+            dataclasses.replace(
+                e, run=dataclasses.replace(e.run, amplitude_nm=0.999 * e.run.amplitude_nm)
+            )
+            for e in measured.estimates
+        ),
+    )
+    ident, valid = split_runs([measured, shifted])
+    for test, picks, rest in zip((measured, shifted), ident, valid, strict=True):
+        assert [round(test.estimates[i].run.amplitude_nm) for i in picks] == [5, 10]
+        assert [round(test.estimates[i].run.amplitude_nm) for i in rest] == [2]
 
 
 def test_a_run_without_an_frf_may_not_identify_but_may_be_left_out_of_the_validation(
@@ -209,3 +230,30 @@ def test_a_known_combustion_variation_replaces_the_idle_estimate(
     assert known.as_dict()["combustion_variation"] == {"reference": 0.03}
     with pytest.raises(ConfigError, match="within"):
         run_identification([measured], reference, fixed={"combustion_variation": 3.0})
+
+
+def test_one_amplitude_reports_stiffness_and_play_as_not_identifiable(
+    reference: DrivetrainParameters, softer_dmf: tuple, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Issue 3: a recording that cannot separate stiffness from free play (one amplitude, eq.
+    22) says so for those two, with or without profiles; two amplitudes do not."""
+    truth, measured = softer_dmf
+    theta = theta_from_parameters(truth)
+    fixed = {name: theta[name] for name in THETA_NAMES if name not in ("c12", "eps12", "d12")}
+    budget = SearchSettings(popsize=3, generations=2, polish_evaluations=10, newton_iterations=0)
+    one = run_identification(
+        [measured],
+        reference,
+        fixed=fixed,
+        identify_amplitudes=[10.0],
+        settings=budget,
+        profile_points=0,
+    ).as_dict()
+    assert one["identifiable"] == {"c12": "no", "eps12": "no"}
+    assert set(one["identifiability_notes"]) == {"c12", "eps12"}
+    assert "eq. 22" in one["identifiability_notes"]["eps12"]
+    assert "not identifiable from these data: c12 and eps12" in caplog.text
+    two = run_identification(
+        [measured], reference, fixed=fixed, settings=budget, profile_points=0
+    ).as_dict()
+    assert two["identifiable"] == {} and two["identifiability_notes"] == {}

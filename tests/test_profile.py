@@ -180,7 +180,9 @@ def test_one_amplitude_cannot_pin_stiffness_and_play() -> None:
     amplitude because a chirp is not one sinusoid: its deflection grows several-fold through
     the resonance, so one run already sees more than one amplitude of eq. (21). What must hold
     is that one amplitude gives no confident wrong answer: intervals that hold the truth,
-    several times wider than two amplitudes give."""
+    several times wider than two amplitudes give; the verdict on them is eq. (22)'s ``no``
+    (``test_identify.py::test_one_amplitude_reports_stiffness_and_play_as_not_identifiable``),
+    since this narrowing rests on the model's exact dead-zone shape alone."""
     one, theta = _stiffness_and_play_profiles((10.0,))
     two, _ = _stiffness_and_play_profiles((5.0, 10.0))
     for name in ("c12", "eps12"):

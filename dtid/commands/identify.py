@@ -22,7 +22,7 @@ from dtid.commands.common import (
 )
 from dtid.errors import ConfigError
 from identification.identify import SearchSettings
-from identification.parameterization import THETA_NAMES
+from identification.parameterization import PRIOR_SPAN, THETA_NAMES
 from identification.pipeline import OPERATING_POINT, run_identification
 from simulator.parameters import load_parameters, reference_parameters
 
@@ -49,16 +49,54 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="NM",
         help="amplitudes that identify (default: the two largest); the others validate",
     )
-    parser.add_argument(
-        "--prior",
-        type=Path,
-        help="parameter set (TOML) the default +-100 %% bounds centre on (default: reference)",
-    )
+    add_bounds_options(parser)
     add_search_options(parser)
     parser.add_argument("--json", type=Path, help="write the result as JSON")
     parser.add_argument("--plot", type=Path, help="overlay measured and identified FRFs (Fig. 6)")
     add_interface_options(parser)
     parser.set_defaults(run=run)
+
+
+def add_bounds_options(parser: argparse.ArgumentParser) -> None:
+    """Add the prior and the search box (``dtid identify`` and ``dtid profile``)."""
+    parser.add_argument(
+        "--prior",
+        type=Path,
+        help="parameter set (TOML) the bounds centre on (default: the reference vehicle)",
+    )
+    parser.add_argument(
+        "--span",
+        type=positive_float,
+        default=100 * PRIOR_SPAN,
+        metavar="PERCENT",
+        help="bounds of every free parameter: the prior +- this (default: %(default)g %%)",
+    )
+    parser.add_argument(
+        "--bounds",
+        nargs="+",
+        default=[],
+        metavar="NAME=LOWER:UPPER",
+        help="explicit bounds of parameters (SI units), overriding --span for them",
+    )
+
+
+def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]]:
+    """``NAME=LOWER:UPPER`` items to a dict, naming a wrong one (the values' order is checked
+    by :meth:`identification.parameterization.Parameterization.around`)."""
+    bounds = {}
+    for item in items:
+        name, sep, span = item.partition("=")
+        lower, colon, upper = span.partition(":")
+        try:
+            if not (sep and colon and name in THETA_NAMES):
+                raise ValueError
+            bounds[name] = (float(lower), float(upper))
+        except ValueError:
+            raise ConfigError(
+                f"--bounds {item!r}: expected NAME=LOWER:UPPER in SI units (e.g. c12=100:600) "
+                f"with NAME one of {', '.join(THETA_NAMES)}"
+            ) from None
+    return bounds
 
 
 def add_search_options(parser: argparse.ArgumentParser) -> None:
@@ -118,6 +156,8 @@ def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> Non
                 f"[{'-inf' if lo is None else f'{lo:.4g}'}, {'inf' if hi is None else f'{hi:.4g}'}]"
             )
         print(f"{name:>6} = {value:<12.5g} {span:<26} {verdict}")
+    for note in dict.fromkeys(document["identifiability_notes"].values()):
+        print(f"not identifiable: {note}")
     for role, values in document["nrmse"].items():
         for label, value in values.items():
             print(f"NRMSE {role:<10} {label}: {value:.3f}")
@@ -162,6 +202,7 @@ def _progress(stage: str, step: int, steps: int, best: float) -> None:
 def run(args: argparse.Namespace) -> int:
     """Identify, print the result, write JSON and plot as asked."""
     fixed = parse_fixed(args.fix)
+    bounds = parse_bounds(args.bounds)
     settings = search_settings(args)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
     tests = measured_tests(args.recordings, args.dbc, args.signals)
@@ -169,6 +210,8 @@ def run(args: argparse.Namespace) -> int:
         tests,
         prior,
         fixed=fixed,
+        bounds=bounds,
+        span=args.span / 100,
         identify_amplitudes=args.identify,
         settings=settings,
         profile_points=args.profile_points,

@@ -11,11 +11,11 @@ import argparse
 from pathlib import Path
 
 from dtid.commands.common import add_interface_options, measured_tests, write_json
-from dtid.commands.identify import parse_fixed
+from dtid.commands.identify import add_bounds_options, parse_bounds, parse_fixed
 from dtid.errors import ConfigError
 from identification.pipeline import run_identification
 from identification.setups import profile_setup, setup
-from simulator.parameters import reference_parameters
+from simulator.parameters import load_parameters, reference_parameters
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -29,6 +29,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--setup", type=int, choices=(1, 2, 3, 4), help="paper's setup")
     parser.add_argument("--points", type=int, default=7, help="grid points (default: 7)")
     parser.add_argument("--fix", nargs="+", default=[], metavar="NAME=VALUE")
+    add_bounds_options(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, help="write the profiles as JSON")
     parser.add_argument("--plot", type=Path, help="plot the profiles")
@@ -49,8 +50,10 @@ def run(args: argparse.Namespace) -> int:
         tests = measured_tests(args.recordings, args.dbc, args.signals)
         report = run_identification(
             tests,
-            reference_parameters(),
+            load_parameters(args.prior) if args.prior else reference_parameters(),
             fixed=parse_fixed(args.fix),
+            bounds=parse_bounds(args.bounds),
+            span=args.span / 100,
             profile_points=args.points,
         )
         profiles = dict(report.profiles)
@@ -58,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
     for name, prof in profiles.items():
         left, right = prof.rise
         print(f"{name:>6}: {prof.verdict:<10} rise left {left:.3f}, right {right:.3f}")
+    for note in dict.fromkeys(prof.note for prof in profiles.values() if prof.note):
+        print(f"not identifiable: {note}")
     if args.json:
         write_json(args.json, {name: prof.as_dict() for name, prof in profiles.items()})
     if args.plot:
