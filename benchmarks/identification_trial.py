@@ -1,4 +1,4 @@
-"""Identification trial (issue 3, in progress): accuracy and wall time on a simulated recording.
+"""Identification trial (issue 3): accuracy and wall time on a simulated recording.
 
 Simulates the default three-amplitude test (2, 5, 10 N*m, 60 s chirps, realistic noise) of a
 truth, identifies the setup-4 parameters from the 5 and 10 N*m runs with the reference vehicle
