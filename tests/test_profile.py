@@ -27,13 +27,34 @@ def test_interval_from_threshold_crossings() -> None:
     values = np.linspace(0, 6, 7)
     stat = np.array([9.0, 4.0, 1.0, 0.0, 1.0, 2.0, 3.0])
     (lower, upper), verdict = _interval_and_verdict(values, stat, 3.0)
-    assert lower == pytest.approx(2 - (THRESHOLD - 1.0) / (4.0 - 1.0))  # between 1 and 2
+    # between 1 and 2, linear in the root of lambda (1 at 2, 2 at 1)
+    assert lower == pytest.approx(2 - (np.sqrt(THRESHOLD) - 1.0) / (2.0 - 1.0))
     assert upper is None and verdict == "structural"
     (lower, upper), verdict = _interval_and_verdict(values, np.zeros(7), 3.0)
     assert (lower, upper, verdict) == (None, None, "no")
     stat = np.array([9.0, 5.0, 1.0, 0.0, 1.0, 5.0, 9.0])
     (lower, upper), verdict = _interval_and_verdict(values, stat, 3.0)
     assert verdict == "practical" and 1 < lower < 2 and 4 < upper < 5
+
+
+def test_interval_of_a_quadratic_profile_from_coarse_points() -> None:
+    """A parabola lambda = ((v - 3) / 0.1)^2, the likelihood ratio of a linear model with a
+    standard error of 0.1, sampled as coarsely as a profile's bisection leaves a narrow one:
+    the interval is the exact 3 +- 1.96 * 0.1, whatever the spacing."""
+    for spacing in (0.15, 0.5, 1.0):
+        values = 3.0 + spacing * np.arange(-3, 4)
+        stat = ((values - 3.0) / 0.1) ** 2
+        (lower, upper), verdict = _interval_and_verdict(values, stat, 3.0)
+        half = np.sqrt(THRESHOLD) * 0.1
+        assert verdict == "practical"
+        assert (lower, upper) == (pytest.approx(3.0 - half), pytest.approx(3.0 + half))
+
+
+def test_interval_ends_at_a_model_that_cannot_idle() -> None:
+    values = np.linspace(0, 6, 7)
+    stat = np.array([np.inf, np.inf, 1.0, 0.0, 1.0, 2.0, 3.0])
+    (lower, upper), _ = _interval_and_verdict(values, stat, 3.0)
+    assert lower == 1.0 and upper is None
 
 
 @pytest.fixture(scope="module")
@@ -174,9 +195,9 @@ def _stiffness_and_play_profiles(amplitudes: tuple[float, ...]) -> tuple[dict, d
 def test_one_amplitude_cannot_pin_stiffness_and_play() -> None:
     """Eq. (22): one amplitude leaves a family of (c, eps); two pin the pair (eq. 23).
 
-    Measured on a noisy recording (seed 4): one 10 N*m chirp gives c12 [288, 355] and eps12
+    Measured on a noisy recording (seed 4): one 10 N*m chirp gives c12 [285, 358] and eps12
     [0.018, 0.031] for 300 and 0.02, both flatter towards larger values (the paper's setup 2);
-    5 and 10 N*m give [298, 313] and [0.0193, 0.0219]. The intervals close even with one
+    5 and 10 N*m give [296, 312] and [0.0193, 0.0217]. The intervals close even with one
     amplitude because a chirp is not one sinusoid: its deflection grows several-fold through
     the resonance, so one run already sees more than one amplitude of eq. (21). What must hold
     is that one amplitude gives no confident wrong answer: intervals that hold the truth,
