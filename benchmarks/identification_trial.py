@@ -7,9 +7,9 @@ wall time and the number of simulated parameter sets. It also runs the search's 
 from the truth: where that optimum is lower than the one found, the search missed it; where it is
 higher, the data prefer what was found. Not a test: nothing is asserted.
 
-    python benchmarks/identification_trial.py            # the reference vehicle as truth
-    python benchmarks/identification_trial.py --truth 1  # a truth drawn within +-40 % (seed 1)
-    python benchmarks/identification_trial.py --truth 1 --profile-points 7  # with intervals
+    PYTHONPATH=. python benchmarks/identification_trial.py  # the reference vehicle as truth
+    PYTHONPATH=. python benchmarks/identification_trial.py --truth 1  # drawn within +-40 %
+    PYTHONPATH=. python benchmarks/identification_trial.py --truth 1 --profile-points 7
 """
 
 from __future__ import annotations
