@@ -283,6 +283,7 @@ def amplitude_levels(amplitudes: Iterable[float]) -> list[float]:
 
 
 def _at_level(amplitude: float, chosen: Sequence[float]) -> bool:
+    """Whether a run's amplitude, N*m, is within :data:`AMPLITUDE_MATCH` of a chosen level."""
     return any(abs(amplitude - a) <= AMPLITUDE_MATCH * a for a in chosen)
 
 
