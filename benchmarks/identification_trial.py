@@ -48,13 +48,9 @@ def nearest_optimum(
     and eq. (17) there: lower than what the search found, and the search missed it."""
     fixed = {n: v for n, v in report.fixed.items() if n in THETA_NAMES}
     par = Parameterization.around(reference_parameters(), report.t_loss, report.gain, fixed=fixed)
-    lag = report.identification.stroke_lag_s
     objective = Objective(
         par,
-        [
-            t.model_test(runs, stroke_lag_s=lag)
-            for t, runs in zip(report.fit.tests, report.fit.runs, strict=True)
-        ],
+        [t.model_test(runs) for t, runs in zip(report.fit.tests, report.fit.runs, strict=True)],
         [
             [t.estimates[i].drv_db for i in runs]
             for t, runs in zip(report.fit.tests, report.fit.runs, strict=True)
@@ -143,7 +139,7 @@ def main() -> None:
         f"{time.perf_counter() - began:.1f} s"
     )
     print(
-        f"stroke lag {1000 * result.stroke_lag_s:.1f} ms; stages: "
+        "stages: "
         + ", ".join(f"{k} {n} sets in {sec:.1f} s" for k, (n, sec) in result.stages.items())
     )
     print(

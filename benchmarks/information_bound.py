@@ -30,7 +30,7 @@ import itertools
 import numpy as np
 
 from benchmarks.identification_trial import draw_truth
-from identification.identify import Objective, stroke_lag
+from identification.identify import Objective
 from identification.parameterization import (
     THETA_NAMES,
     Parameterization,
@@ -113,8 +113,6 @@ def main() -> None:
     if args.variation is not None:
         changes["combustion_variation"] = args.variation
     objectives = [o.replacing(**changes) for o in objectives]
-    lag = stroke_lag(objectives[0], unit)
-    objectives = [o.replacing(stroke_lag_s=lag) for o in objectives]
     variations = [round(t.combustion_variation, 4) for t in selection.tests]
     print(f"combustion variation measured: {variations}")
     spreads = np.concatenate(
@@ -152,7 +150,7 @@ def main() -> None:
 
     print(
         f"truth {args.truth}, {args.seeds} seeds, chirps {args.duration:g} s, identifying "
-        f"{args.identify or 'the two largest'}; stroke lag {1000 * lag:.1f} ms; "
+        f"{args.identify or 'the two largest'}; "
         f"NRMSE of the mean residual at the truth {[round(float(n), 4) for n in at_truth]}"
     )
     print(f"{'':>6} {'bias %':>8} {'sd %':>8} {'LS sd %':>8} {'profile sd %':>12} {'ratio':>6}")

@@ -167,47 +167,10 @@ class Objective:
 
     def replacing(self, **changes: object) -> Objective:
         """The same objective with its tests changed, for example ``realizations`` (fewer are
-        cheaper) or ``stroke_lag_s`` (:class:`identification.model_response.ModelTest`); the
-        counters start at zero."""
+        cheaper) or ``seed`` (:class:`identification.model_response.ModelTest`); the counters
+        start at zero."""
         tests = [dataclasses.replace(t, **changes) for t in self.tests]
         return Objective(self.parameterization, tests, self.measured_db)
-
-
-LAG_STEPS = 6
-"""Lags tried across one stroke period by :func:`stroke_lag`."""
-
-
-def stroke_lag(objective: Objective, unit: np.ndarray) -> float:
-    """The lag of the stamped stroke ends that fits best at one parameter set, s.
-
-    The firing phase matters (:mod:`identification.model_response`), but a recording stamps a
-    stroke's end when its frame arrives, later than it happened by a latency no log records;
-    so :data:`LAG_STEPS` lags across one stroke period (the median spacing of the stroke ends)
-    are tried and the best kept. The fit is good over about a third of the stroke and poor over
-    the rest (at the truth of a simulated recording, exactly stamped: 0.073-0.083 from -12.5 to
-    +5 ms, 0.12-0.13 from 7.5 to 15 ms); over the virtual vehicle's bus, the first log the
-    lag was tried on, the objective at the truth fell from 0.257 with no lag to 0.18.
-
-    Parameters
-    ----------
-    objective
-        Eq. (17); its tests' lags are ignored, and its counters take the evaluations.
-    unit
-        Normalised free values (n_free,) to compare the lags at.
-    """
-    spacings = [np.median(np.diff(t.stroke_ends_s)) for t in objective.tests]
-    periods = [p for p in spacings if np.isfinite(p) and p > 0]
-    if not periods or all(t.combustion_variation == 0 for t in objective.tests):
-        return 0.0  # a deterministic test is replayed from its start: no lag to choose
-    lags = float(np.median(periods)) * np.arange(LAG_STEPS) / LAG_STEPS
-    values = []
-    for lag in lags:
-        lagged = objective.replacing(stroke_lag_s=float(lag))
-        values.append(lagged(unit[None])[0])
-        objective.calls += lagged.calls
-        objective.parameter_sets += lagged.parameter_sets
-        objective.seconds += lagged.seconds
-    return float(lags[int(np.argmin(values))])
 
 
 @dataclass(frozen=True)
@@ -229,12 +192,9 @@ class Identification:
         Parameter sets simulated.
     seconds
         Wall time of the search, s, and the share spent in the objective.
-    stroke_lag_s
-        The lag of the recordings' stamped stroke ends the model replays with
-        (:func:`stroke_lag`), s.
     stages
-        Per search stage (``global``, ``polish``, ``final``, ``newton``, and ``lag`` for the
-        choice of the lag): parameter sets simulated and seconds spent in the objective.
+        Per search stage (``global``, ``polish``, ``final``, ``newton``): parameter sets
+        simulated and seconds spent in the objective.
     combustion_variation
         The combustion variation the model engine repeated in the final stages, per recording
         name (see :attr:`SearchSettings.separate_sensor_noise`).
@@ -249,7 +209,6 @@ class Identification:
     seconds: float
     objective_seconds: float
     unit: np.ndarray = field(repr=False)
-    stroke_lag_s: float = 0.0
     stages: dict[str, tuple[int, float]] = field(default_factory=dict)
     combustion_variation: dict[str, float] = field(default_factory=dict)
 
@@ -287,6 +246,11 @@ def _at_level(amplitude: float, chosen: Sequence[float]) -> bool:
     return any(abs(amplitude - a) <= AMPLITUDE_MATCH * a for a in chosen)
 
 
+def runs_at(test: MeasuredTest, levels: Sequence[float]) -> list[int]:
+    """Indices of a recording's runs at any of the given amplitude levels, N*m."""
+    return [i for i, e in enumerate(test.estimates) if _at_level(e.run.amplitude_nm, levels)]
+
+
 def split_runs(
     tests: Sequence[MeasuredTest], identify_amplitudes: Sequence[float] | None = None
 ) -> tuple[list[list[int]], list[list[int]]]:
@@ -322,7 +286,7 @@ def split_runs(
                 run.start_s,
                 reason,
             )
-        picks = [i for i, e in enumerate(test.estimates) if _at_level(e.run.amplitude_nm, chosen)]
+        picks = runs_at(test, chosen)
         ident.append(picks)
         valid.append([i for i in range(len(test.estimates)) if i not in picks])
     if not any(ident):
@@ -372,13 +336,6 @@ def identify(
         [[t.estimates[i].drv_db for i in runs] for t, runs in used],
     )
     n_free = len(parameterization.free)
-    start = np.full(n_free, 0.5)
-    if starts:
-        theta = np.array([[starts[0][name] for name in THETA_NAMES]])
-        start = np.clip(parameterization.unit(theta)[0], 0.0, 1.0)
-    lag_tally = objective  # counts the evaluations that choose the lag
-    lag = stroke_lag(lag_tally, start)
-    objective = objective.replacing(stroke_lag_s=lag)
     stages = {
         "global": objective.replacing(realizations=settings.global_realizations),
         "polish": objective.replacing(realizations=settings.polish_realizations),
@@ -391,8 +348,8 @@ def identify(
             members, energies = population
             at = parameterization.parameters(members[np.argmin(energies)][None])[0]
             variations = [t.without_sensor_noise(at).combustion_variation for t, _ in used]
-            objective, lag_tally, stages["polish"] = (
-                o.with_variations(variations) for o in (objective, lag_tally, stages["polish"])
+            objective, stages["polish"] = (
+                o.with_variations(variations) for o in (objective, stages["polish"])
             )
             separated = {t.name: v for (t, _), v in zip(used, variations, strict=True)}
             tests = [  # the fit and validation NRMSE below score what was fitted
@@ -409,8 +366,6 @@ def identify(
         candidates = np.array([member for member, _ in polished])
         best = candidates[int(np.argmin(objective(candidates)))]  # ranked on all realizations
         stages["polish"].count(objective)
-        lag = stroke_lag(lag_tally, best)  # again, nearer the optimum
-        objective = objective.replacing(stroke_lag_s=lag)
         best, value = _polish(
             objective,
             best,
@@ -421,10 +376,9 @@ def identify(
         stages["final"], stages["newton"] = objective, objective.replacing()
         best = _levenberg_marquardt(stages["newton"], best, value, settings.newton_iterations)
     stages.setdefault("final", objective)
-    stages["lag"] = lag_tally
     params = parameterization.parameters(best[None])
-    fit = _nrmse_by_run(tests, identify_runs, params, lag)
-    validation = _nrmse_by_run(tests, validate_runs, params, lag)
+    fit = _nrmse_by_run(tests, identify_runs, params)
+    validation = _nrmse_by_run(tests, validate_runs, params)
     theta = parameterization.theta(best[None])[0]
     return Identification(
         parameters=DrivetrainParameters.from_array(params[0]),
@@ -436,7 +390,6 @@ def identify(
         seconds=time.perf_counter() - began,
         objective_seconds=sum(stage.seconds for stage in stages.values()),
         unit=best,
-        stroke_lag_s=lag,
         stages={name: (stage.parameter_sets, stage.seconds) for name, stage in stages.items()},
         combustion_variation={
             t.name: model.combustion_variation
@@ -638,13 +591,12 @@ def _nrmse_by_run(
     tests: Sequence[MeasuredTest],
     runs: Sequence[Sequence[int]],
     params: np.ndarray,
-    stroke_lag_s: float,
 ) -> dict[str, float]:
     out = {}
     for test, indices in zip(tests, runs, strict=True):
         if not indices:
             continue
-        model = model_drv_db(params, test.model_test(indices, stroke_lag_s=stroke_lag_s))
+        model = model_drv_db(params, test.model_test(indices))
         for i, db in zip(indices, model, strict=True):
             out[_label(test, i)] = float(nrmse(test.estimates[i].drv_db, db)[0])
     return out

@@ -25,23 +25,25 @@ with independent draws (``--plain``); on the whole curve the pairs gain less (0.
 0.057 dB RMS from the mean of 128 realizations on the reference), the free play's higher
 orders staying.
 
-What the draws do not average out is the firing phase. The engine takes the test torque once
-per working stroke, so the chirp reaches the plant sampled at the firing frequency f_s; near
-f_s/3 its alias f_s - f falls on the free play's second harmonic 2f, and how the two add depends
-on where the strokes fall in the chirp's time base. At 1000 rpm and 10 N*m that makes a peak at
-11 Hz that repeats to 0.02 dB from one recording of a vehicle to the next (eight noise seeds of
-the accuracy trial's truth 1), and a replay half a stroke out of phase misses the reference
-vehicle's |G_DRV| there by 1.4-2 dB. The recording tells that phase: its mean torque is
-sampled at the end of every working stroke. Each run is therefore replayed on its own, from the
-stroke end ``SETTLE_S`` before the run, so that the model's strokes fall where the vehicle's did;
-the drift over the run is then set by the idle set-point, which
-:class:`identification.test_setup.MeasuredTest` estimates to about 0.01 rpm. A recording without
-combustion variation is deterministic instead and is replayed whole from its start, which
-reproduces it exactly. Many parameter sets are simulated in one batched, parallel call.
+What the draws do not average out is the firing phase. The engine takes its request once per
+working stroke, so the chirp reaches the plant sampled at the firing frequency f_s; near f_s/3
+its alias f_s - f falls on the free play's second harmonic 2f, and how the two add depends on
+which samples the strokes took. At 1000 rpm and 10 N*m that makes a peak at 11 Hz that repeats
+to 0.02 dB from one recording of a vehicle to the next, and a replay whose strokes take the
+request a crank event off misses it by over a decibel. The model of a recording therefore
+repeats it crank event by crank event (:mod:`identification.idle_loop`): each run is replayed on
+its own from the stroke ``SETTLE_S`` before it, every model stroke takes the request the
+vehicle's stroke at that crank angle took, and the model's FRF uses the test torque the vehicle's
+ECU held at those crank events. Many parameter sets are simulated in one batched, parallel call.
+
+Without a recording's loop (``loop`` None: the paper's setups, on the simulator's own data) the
+model closes the loop with the simulator's own idle controller and replays the whole test from
+its start, which reproduces a clean simulated recording exactly.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -52,12 +54,18 @@ from identification.frf import (
     drivetrain_magnitude,
     request_magnitude,
 )
+from identification.idle_loop import IdleLoop
 from identification.testdata import Series
 from simulator.controller import IdleController
+from simulator.engine import EngineGeometry
+from simulator.parameters import INDEX
 from simulator.simulate import BatchResult, SimulationOptions, replay_batch
 
 SETTLE_S = 3.0
 """Idle before each run in the model's replay, s (the plan's settling time)."""
+DRIVEN_MARGIN_S = 1.0
+"""Simulated time past the recording's last crank event a driven replay may need (its speed a
+little lower than the vehicle's), s; the drive's last request holds there."""
 DEFAULT_REALIZATIONS = 4
 """Runs per parameter set whose cross-spectra are averaged (see the module notes)."""
 
@@ -76,12 +84,17 @@ class Replay:
         Simulated duration: past its last run, with room for slower speeds, s.
     runs
         Indices of the test's estimates it covers.
+    start_event
+        The recording's crank event at simulated time 0 (a stroke starts there), when the
+        model drives its engine with the recording (:mod:`identification.idle_loop`); None when
+        it closes the loop with the simulator's own idle controller.
     """
 
     offset_s: float
     requests: Series
     end_s: float
     runs: tuple[int, ...]
+    start_event: int | None = None
 
 
 @dataclass(frozen=True)
@@ -98,8 +111,16 @@ class ModelTest:
         uses exactly, so that it depends on its own parameter set only.
     setpoint_rpm
         Idle speed of the test, rpm.
+    loop
+        How the model drives its engine and follows the recorded speed
+        (:mod:`identification.idle_loop`); None closes the loop with the simulator's own idle
+        controller at ``setpoint_rpm`` instead (for tests the simulator made itself, such as
+        the paper's setups, whose loop is then known).
     combustion_variation
         Relative cycle-to-cycle variation of each stroke's mean torque, as measured at idle.
+    engine
+        The vehicle's crank-train data (eqs. 4-5): their pulsation dithers the DMF's free play,
+        so the model's needs to be the vehicle's (:mod:`identification.vehicle_data`).
     realizations
         Runs per parameter set; with no combustion variation one run is enough.
     seed
@@ -107,18 +128,9 @@ class ModelTest:
     input
         ``"torque"``: |G_DRV| of eq. (14), from the measured mean torque; ``"request"``: from the
         torque request T_ecu, the engine gain K included (setup 1).
-    stroke_ends_s
-        When the recording's working strokes ended (its mean-torque samples), s: each run's
-        replay starts at one of them (see the module notes); empty: ``SETTLE_S`` before the run.
     antithetic
         Pair the realizations antithetically (see the module notes); False draws each
         independently.
-    stroke_lag_s
-        How much later a stroke's end is stamped in the recording than a logged request that
-        took effect with it, s: the vehicle's frames and the tool's requests both travel (over
-        a real bus and through the virtual vehicle's 5 ms steps alike), and the replay starts
-        this much before the stamped stroke end. The identification estimates it
-        (:func:`identification.identify.stroke_lag`).
     replays
         What is simulated (derived).
     """
@@ -126,31 +138,39 @@ class ModelTest:
     requests: Series
     estimates: tuple[FrfEstimate, ...]
     setpoint_rpm: float
+    loop: IdleLoop | None = None
     combustion_variation: float = 0.0
+    engine: EngineGeometry = field(default_factory=EngineGeometry)
     realizations: int = DEFAULT_REALIZATIONS
     seed: int = 0
     input: str = "torque"
-    stroke_ends_s: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
-    stroke_lag_s: float = 0.0
     antithetic: bool = True
     options: SimulationOptions = field(init=False)
     replays: tuple[Replay, ...] = field(init=False)
 
     def __post_init__(self) -> None:
+        if self.loop is None:
+            controller = IdleController(setpoint_rpm=self.setpoint_rpm)
+        else:
+            controller = self.loop.controller()
+            if not self.loop.by_request:  # the measured strokes carry the variation
+                object.__setattr__(self, "combustion_variation", 0.0)
         options = SimulationOptions.clean(
             combustion_variation=self.combustion_variation,
-            controller=IdleController(setpoint_rpm=self.setpoint_rpm),
+            controller=controller,
+            engine=self.engine,
         )
         object.__setattr__(self, "options", options)
-        if self.combustion_variation == 0:
-            object.__setattr__(self, "realizations", 1)
-            replays = (self._replay(0.0, tuple(range(len(self.estimates)))),)
-        else:
+        if self.loop is not None:  # each run from a stroke SETTLE_S before it
             replays = tuple(
-                self._replay(self._aligned_start(e.run.start_s - SETTLE_S), (i,))
+                self._driven_replay(self.loop.start_event(e.run.start_s - SETTLE_S), (i,))
                 for i, e in enumerate(self.estimates)
             )
+        else:
+            replays = (self._replay(0.0, tuple(range(len(self.estimates)))),)
         object.__setattr__(self, "replays", replays)
+        if self.combustion_variation == 0:
+            object.__setattr__(self, "realizations", 1)
 
     def streams(self) -> np.ndarray:
         """(realizations,) noise stream of each realization: antithetic pairs share one."""
@@ -164,13 +184,6 @@ class ModelTest:
             return np.ones(self.realizations)
         return np.where(np.arange(self.realizations) % 2 == 1, -1.0, 1.0)
 
-    def _aligned_start(self, wanted_s: float) -> float:
-        """The last stroke end (less the lag) at or before ``wanted_s`` (``wanted_s`` itself if
-        none), s."""
-        starts = self.stroke_ends_s - self.stroke_lag_s
-        before = starts[starts <= wanted_s]
-        return float(before[-1]) if len(before) else max(0.0, wanted_s)
-
     def _replay(self, offset_s: float, runs: tuple[int, ...]) -> Replay:
         keep = self.requests.t >= offset_s
         requests = Series(self.requests.t[keep] - offset_s, self.requests.value[keep])
@@ -178,6 +191,22 @@ class ModelTest:
             self.estimates[i].run.end_s + 0.1 * self.estimates[i].run.duration_s for i in runs
         )
         return Replay(offset_s, requests, end - offset_s, runs)
+
+    def _driven_replay(self, start: int, runs: tuple[int, ...]) -> Replay:
+        assert self.loop is not None
+        offset = float(self.loop.t[start])
+        replay = self._replay(offset, runs)  # no further than the recording, the drive held
+        end_s = min(replay.end_s, self.loop.t[-1] - offset + DRIVEN_MARGIN_S)
+        return dataclasses.replace(replay, end_s=end_s, start_event=start)
+
+    def model_parameters(self, params: np.ndarray) -> np.ndarray:
+        """The parameter sets as the model simulates them: with K = 1 where the drive is the
+        measured torque, which already holds the engine's gain."""
+        if self.loop is None or self.loop.by_request:
+            return params
+        params = params.copy()
+        params[:, INDEX["K"]] = 1.0
+        return params
 
 
 def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
@@ -198,18 +227,27 @@ def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
         parameter set only.
     """
     n_sets, m = params.shape[0], test.realizations
+    params = test.model_parameters(params)
     out: list[np.ndarray] = [np.empty(0)] * len(test.estimates)
     for replay in test.replays:
+        if replay.start_event is None:
+            requests, reference, drive = replay.requests, None, None
+        else:  # the drive holds the test torque already
+            requests = Series(np.zeros(0), np.zeros(0))
+            reference = test.loop.reference(replay.start_event)
+            drive = test.loop.drive(replay.start_event)
         batch = replay_batch(
             np.repeat(params, m, axis=0),
-            replay.requests.t,
-            replay.requests.value,
+            requests.t,
+            requests.value,
             np.ones(n_sets * m),
             replay.end_s,
             test.options,
             seed=test.seed,
             streams=np.tile(test.streams(), n_sets),
             signs=np.tile(test.signs(), n_sets),
+            reference=reference,
+            drive=drive,
         )
         for i in replay.runs:
             out[i] = _run_db(batch, replay, test.estimates[i], test, n_sets)
@@ -226,18 +264,29 @@ def _run_db(
     from_request = test.input == "request"
     rate = np.ones(n_jobs)
     ok = np.zeros(n_jobs, dtype=bool)
+    recorded_z = None
+    if replay.start_event is not None:  # crank event by crank event (idle_loop's notes)
+        loop = test.loop
+        run_event = loop.event(float(loop.t[np.searchsorted(loop.t, estimate.run.start_s)]))
+        recorded_z = loop.test_nm[run_event : run_event + length]
     for job in np.flatnonzero(batch.status == 0):
         speed = batch.speed[job, : batch.n_speed[job]]
         torque = batch.torque[job, : batch.n_torque[job]]
-        first = np.searchsorted(speed[:, 0], start_s)
-        if first + length > len(speed):
+        if recorded_z is None:
+            first = np.searchsorted(speed[:, 0], start_s)
+        else:
+            first = loop.model_event(run_event, replay.start_event)
+        if first + length > len(speed) or (recorded_z is not None and len(recorded_z) < length):
             continue
         t = speed[first : first + length, 0]
         held_torque = np.clip(np.searchsorted(torque[:, 0], t, side="right") - 1, 0, None)
-        held_request = np.searchsorted(requests.t, t, side="right") - 1
         y[job] = speed[first : first + length, 1]
         x[job] = speed[first : first + length, 2] if from_request else torque[held_torque, 1]
-        z[job] = np.where(held_request >= 0, requests.value[held_request], 0.0)
+        if recorded_z is None:
+            held_request = np.searchsorted(requests.t, t, side="right") - 1
+            z[job] = np.where(held_request >= 0, requests.value[held_request], 0.0)
+        else:
+            z[job] = recorded_z
         rate[job] = 1.0 / np.median(np.diff(t))
         ok[job] = True
     db = np.full((n_sets, len(estimate.frequency_hz)), np.nan)

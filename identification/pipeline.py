@@ -30,6 +30,7 @@ from identification.identify import (
     amplitude_levels,
     engine_gain,
     identify,
+    runs_at,
     split_runs,
 )
 from identification.model_response import model_drv_db
@@ -41,6 +42,7 @@ from identification.start_values import start_thetas
 from identification.test_setup import MeasuredTest
 from identification.testdata import Series, TestData
 from simulator.parameters import DrivetrainParameters
+from simulator.vehicle_data import engine_table
 
 logger = logging.getLogger(__name__)
 
@@ -129,10 +131,14 @@ def _select(
             continue
         last = max(range(len(test.estimates)) if validation else runs)
         cut = cut_time(test.data.test_torque, test.estimates[last].run.end_s)
-        kept = MeasuredTest.from_data(test.name, truncated(test.data, cut), resolution_hz)
-        again_ident, again_valid = split_runs([kept], chosen)
+        kept = MeasuredTest.from_data(
+            test.name, truncated(test.data, cut), resolution_hz, test.engine
+        )
+        at_levels = runs_at(kept, chosen)
         selected.append(kept)
-        indices.append(tuple((again_valid if validation else again_ident)[0]))
+        indices.append(
+            tuple(i for i in range(len(kept.estimates)) if (i in at_levels) != validation)
+        )
         cuts.append(cut)
     return RunSelection(tuple(selected), tuple(indices), tuple(cuts))
 
@@ -203,10 +209,9 @@ class IdentificationReport:
             variations = {t.name: t.combustion_variation for t in self.fit.tests}
             selection = with_variation(selection, variations)
         params = self.identification.parameters.as_array()[None]
-        lag = self.identification.stroke_lag_s
         scores = {}
         for test, runs in zip(selection.tests, selection.runs, strict=True):
-            model = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
+            model = model_drv_db(params, test.model_test(runs))
             for i, db in zip(runs, model, strict=True):
                 label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
                 scores[label] = float(nrmse(test.estimates[i].drv_db, db)[0])
@@ -215,7 +220,7 @@ class IdentificationReport:
 
     def fit_objective(self, parameters: DrivetrainParameters) -> float:
         """Eq. (17) of another parameter set on this report's identification runs, scored as the
-        identified one was: the same stroke lag, combustion variation, K and T_loss.
+        identified one was: the same combustion variation, K and T_loss.
 
         Below the report's own ``objective``, the search missed a better fit; above it, the data
         prefer what was found (a simulated truth's, for example: its noise's scatter).
@@ -228,10 +233,9 @@ class IdentificationReport:
         if self.fit is None:
             raise ValueError("the report holds no identification runs to score a set on")
         params = parameters.replace(K=self.gain, T_loss=self.t_loss).as_array()[None]
-        lag = self.identification.stroke_lag_s
         total = 0.0
         for test, runs in zip(self.fit.tests, self.fit.runs, strict=True):
-            curves = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
+            curves = model_drv_db(params, test.model_test(runs))
             total += sum(
                 float(nrmse(test.estimates[i].drv_db, db)[0])
                 for i, db in zip(runs, curves, strict=True)
@@ -241,13 +245,12 @@ class IdentificationReport:
     def fit_curves(self) -> tuple[list[FrfEstimate], list[np.ndarray], list[str]]:
         """Measured FRFs, the identified model's |G_DRV| (dB) and the role of each run (Fig. 6)."""
         params = self.identification.parameters.as_array()[None]
-        lag = self.identification.stroke_lag_s
         measured, model, roles = [], [], []
         for role, selection in (("fit", self.fit), ("validation", self.validation)):
             if selection is None:
                 continue
             for test, runs in zip(selection.tests, selection.runs, strict=True):
-                curves = model_drv_db(params, test.model_test(runs, stroke_lag_s=lag))
+                curves = model_drv_db(params, test.model_test(runs))
                 for i, db in zip(runs, curves, strict=True):
                     measured.append(test.estimates[i])
                     model.append(db[0])
@@ -277,6 +280,8 @@ class IdentificationReport:
             if self.fit
             else {},
             "combustion_variation_without_sensor_noise": dict(self.variation_without_noise),
+            "idle_loop": {t.name: t.loop.as_dict() for t in self.fit.tests} if self.fit else {},
+            "vehicle_data": {"engine": engine_table(self.fit.tests[0].engine)} if self.fit else {},
             "objective": result.objective,
             "parameter_sets": result.parameter_sets,
             "seconds": result.seconds,
@@ -409,10 +414,7 @@ def identify_runs(
         measured_db = [e.drv_db for e in selection.estimates()]
         objective = Objective(
             par,
-            [
-                t.model_test(runs, stroke_lag_s=result.stroke_lag_s)
-                for t, runs in zip(tests, ident, strict=True)
-            ],
+            [t.model_test(runs) for t, runs in zip(tests, ident, strict=True)],
             [[t.estimates[i].drv_db for i in runs] for t, runs in zip(tests, ident, strict=True)],
         )
         for step, name in enumerate(par.free):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -11,9 +12,11 @@ import numpy as np
 from dtid.errors import AnalysisError
 from identification.combustion import separated_variation, stroke_variation
 from identification.frf import FrfEstimate, estimate_frf
+from identification.idle_loop import IdleLoop, idle_loop
 from identification.model_response import ModelTest
 from identification.runs import ChirpRun, find_runs
 from identification.testdata import Series, TestData
+from simulator.engine import EngineGeometry
 
 MAX_WEIGHT_SAMPLES = 4.0
 """In the set-point's time mean a speed sample weighs at most this many median intervals."""
@@ -60,10 +63,22 @@ class MeasuredTest:
     combustion_variation: float
     unusable: tuple[tuple[ChirpRun, str], ...] = ()
     """Chirp runs that cannot give an FRF (lost frames, too short), each with the reason."""
+    engine: EngineGeometry = dataclasses.field(default_factory=EngineGeometry)
+    """The vehicle's crank-train data the model engine uses (the reference engine unless the
+    vehicle's are given: :mod:`identification.vehicle_data`)."""
 
     @classmethod
-    def from_data(cls, name: str, data: TestData, resolution_hz: float) -> MeasuredTest:
+    def from_data(
+        cls,
+        name: str,
+        data: TestData,
+        resolution_hz: float,
+        engine: EngineGeometry | None = None,
+    ) -> MeasuredTest:
         """Find the runs, estimate their FRFs and the idle operating point.
+
+        ``engine`` is the vehicle's crank-train data for the model (the reference engine by
+        default).
 
         A run that cannot give an FRF is kept in ``unusable`` with the reason:
         :func:`identification.identify.split_runs` leaves it out of the validation, or refuses
@@ -96,7 +111,14 @@ class MeasuredTest:
             mean,
             variation,
             tuple(unusable),
+            engine or EngineGeometry(),
         )
+
+    @functools.cached_property
+    def loop(self) -> IdleLoop:
+        """The recording on its crank-event grid, as the model drives its engine
+        (:mod:`identification.idle_loop`)."""
+        return idle_loop(self.data)
 
     def without_sensor_noise(self, params: np.ndarray) -> MeasuredTest:
         """This recording with the torque sensor's noise taken out of its combustion variation
@@ -109,19 +131,17 @@ class MeasuredTest:
         )
         return dataclasses.replace(self, combustion_variation=variation)
 
-    def model_test(
-        self, indices: Sequence[int], realizations: int | None = None, stroke_lag_s: float = 0.0
-    ) -> ModelTest:
-        """The model's repetition of this recording, estimating the runs given by index (see
-        :class:`identification.model_response.ModelTest` for the lag)."""
+    def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
+        """The model's repetition of this recording, estimating the runs given by index
+        (:class:`identification.model_response.ModelTest`)."""
         extra = {} if realizations is None else {"realizations": realizations}
         return ModelTest(
             requests=self.data.test_torque,
             estimates=tuple(self.estimates[i] for i in indices),
             setpoint_rpm=self.setpoint_rpm,
+            loop=self.loop,
+            engine=self.engine,
             combustion_variation=self.combustion_variation,
-            stroke_ends_s=self.data.mean_torque.t,
-            stroke_lag_s=stroke_lag_s,
             **extra,
         )
 

@@ -54,6 +54,7 @@ from identification.identify import SearchSettings
 from identification.live import EventLog, LiveSession
 from identification.pipeline import IdentificationReport, identify_runs
 from simulator.parameters import DrivetrainParameters, reference_parameters
+from simulator.vehicle_data import VehicleData
 
 logger = logging.getLogger(__name__)
 
@@ -127,6 +128,9 @@ class WorkerOptions:
         Grid points per profile; 0 skips the profiles (``dtid identify``'s default: 5).
     prior
         Parameter set the bounds centre on; the reference vehicle by default.
+    vehicle
+        The vehicle's data besides its drivetrain (crank train); the reference engine's by
+        default.
     json_path, plot_path
         Result file and Fig. 6 plot; None: ``identification.json`` and ``identification.png``
         beside the session's log.
@@ -139,6 +143,7 @@ class WorkerOptions:
     settings: SearchSettings = field(default_factory=SearchSettings)
     profile_points: int = 5
     prior: DrivetrainParameters | None = None
+    vehicle: VehicleData = field(default_factory=VehicleData)
     json_path: Path | None = None
     plot_path: Path | None = None
     plot: bool = True
@@ -368,7 +373,9 @@ class Worker:
                 except DtidError as error:
                     self._fail(session, str(error))
                     return
-                session.live = LiveSession(event, interface, self.options.resolution_hz)
+                session.live = LiveSession(
+                    event, interface, self.options.resolution_hz, self.options.vehicle.engine
+                )
                 self._progress(session, "acquiring")
                 continue
             before = session.live.phase

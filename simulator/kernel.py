@@ -9,12 +9,25 @@ the angle step (see :func:`simulator.simulate.substeps`); the engine torque is h
 
 Events on the angle grid, at the start of a step, in this order:
 
-1. every pi (30 steps): the cylinder whose working stroke ends reports its mean torque (the
+1. every pi/2 (15 steps): the speed sensor outputs the mean of the last 30 step speeds (eq. 9),
+   the ECU's idle controller updates and forms its torque request (see below);
+2. every pi (30 steps): the cylinder whose working stroke ends reports its mean torque (the
    cylinder-pressure sensor, once per stroke), then the next cylinder starts its stroke and holds
-   T_m = K * T_ecu for its working cycle (eq. 3), T_ecu being the last request of the ECU;
-2. every pi/2 (15 steps): the speed sensor outputs the mean of the last 30 step speeds (eq. 9), the
-   idle controller updates, and T_ecu = controller output + the test torque request last received
-   (a table of request times and values, scaled: the plan's chirps or a recording's requests).
+   T_m = K * T_ecu for its working cycle (eq. 3), T_ecu being the request the ECU formed
+   ``latch`` speed samples before (1: the one before this step's, the product ECU's timing).
+
+The ECU's request at a speed sample is the controller's output (``delay`` samples old) plus the
+test torque request; the controller acts on the error reference - measured speed (optionally
+low-passed): proportional, integral and a filtered derivative of the measured speed (see
+:class:`simulator.controller.IdleController`). A starting stroke takes that request plus its
+entry of the *drive*. Reference and drive are indexed by crank angle: ``reference[i]`` is the
+reference at the (i+1)-th speed sample of the run (the last entry holds after the end), and
+``drive[n]`` the torque added to the n-th stroke's request (the last holds after the end). A
+vehicle's own ECU has one reference entry, its set-point, and no drive. The identification's
+model of a recorded test instead drives each stroke with the torque request the vehicle's
+stroke at that crank angle took, and keeps the simulated speed on the recorded one, sample by
+sample, with a slow controller of its own (:mod:`identification.idle_loop`); the test torque
+requests are then already in the drive and the request table is empty.
 
 A run may be advanced in segments: :func:`advance` continues a state vector made by
 :func:`initial_state` (the virtual vehicle steps the plant in real time this way, with the request
@@ -60,37 +73,69 @@ MAX_SPEED_RATIO = 3.0
 """The run stops above this multiple of the set-point speed (run-away)."""
 
 
+# Layout of a controller array (:meth:`simulator.controller.IdleController.as_array`).
+C_SETPOINT, C_KP, C_KI, C_U_MIN, C_U_MAX, C_CLOSED, C_KD, C_D_TAU, C_DELAY, C_LATCH, C_E_TAU = (
+    range(11)
+)
+N_CONTROLLER = 11
+N_RING = 8
+"""Speed samples of past controller outputs and requests the state keeps (delay and latch are
+at most ``N_RING - 1``)."""
+
 # Layout of a plant state vector (see :func:`initial_state`): scalars, then the held mean torque
-# of each cylinder, then the speed sensor's window of step speeds.
+# of each cylinder, the speed sensor's window of step speeds, and the rings of the controller's
+# past outputs and the ECU's past requests.
 S_T, S_T_CONTROL, S_STEP, S_W1, S_W2, S_W3 = 0, 1, 2, 3, 4, 5
 S_DELTA12, S_DELTA23, S_BACKLASH, S_INTEGRAL, S_REQUEST, S_WINDOW_SUM, S_WINDOW_POS = (
-    6, 7, 8, 9, 10, 11, 12
+    6,
+    7,
+    8,
+    9,
+    10,
+    11,
+    12,
 )
-N_SCALARS = 13
-STATE_SIZE = N_SCALARS + N_CYL + N_WIN
+S_DERIVATIVE, S_LAST_MEASURED, S_RING_POS, S_ERROR = 13, 14, 15, 16
+N_SCALARS = 17
+O_HELD = N_SCALARS
+O_WINDOW = O_HELD + N_CYL
+O_COMMANDS = O_WINDOW + N_WIN
+O_REQUESTS = O_COMMANDS + N_RING
+STATE_SIZE = O_REQUESTS + N_RING
 """Length of a plant state vector."""
 
 
 @numba.njit(cache=True)
-def initial_state(params: np.ndarray, controller: np.ndarray, test_nm: float) -> np.ndarray:
-    """The plant at rest at its idle set-point, t = 0, before the first angle step.
+def initial_state(
+    params: np.ndarray,
+    controller: np.ndarray,
+    reference: np.ndarray,
+    drive: np.ndarray,
+    test_nm: float,
+) -> np.ndarray:
+    """The plant at rest at its reference speed, t = 0, before the first angle step.
 
-    All masses turn at the set-point speed, the couplings are relaxed, every cylinder holds
-    T_loss, the integrator holds T_loss / K and the ECU's request is that plus ``test_nm``, the
-    test torque held at t = 0 (N*m).
+    All masses turn at the first reference speed, the couplings are relaxed, every cylinder
+    holds T_loss, the integrator holds what balances T_loss with the drive's mean (T_loss / K -
+    mean drive, within the controller's limits) and the ECU's request is that plus ``test_nm``,
+    the test torque held at t = 0 (N*m).
     """
     t_loss, gain = params[10], params[11]
-    setpoint, u_min, u_max = controller[0], controller[3], controller[4]
-    w_set = setpoint / RPM_PER_RAD_S
+    u_min, u_max = controller[C_U_MIN], controller[C_U_MAX]
+    w_set = reference[0] / RPM_PER_RAD_S
+    mean_drive = np.mean(drive) if drive.shape[0] > 0 else 0.0
     state = np.zeros(STATE_SIZE)
     state[S_W1] = w_set
     state[S_W2] = w_set
     state[S_W3] = w_set
-    integral = min(max(t_loss / gain, u_min), u_max)
+    integral = min(max(t_loss / gain - mean_drive, u_min), u_max)
     state[S_INTEGRAL] = integral
     state[S_REQUEST] = integral + test_nm
-    state[N_SCALARS : N_SCALARS + N_CYL] = t_loss
-    state[N_SCALARS + N_CYL :] = w_set
+    state[S_LAST_MEASURED] = reference[0]
+    state[O_HELD:O_WINDOW] = t_loss
+    state[O_WINDOW:O_COMMANDS] = w_set
+    state[O_COMMANDS:O_REQUESTS] = integral
+    state[O_REQUESTS:] = state[S_REQUEST]
     state[S_WINDOW_SUM] = N_WIN * w_set
     return state
 
@@ -103,6 +148,8 @@ def advance(
     compression: np.ndarray,
     inertia: np.ndarray,
     controller: np.ndarray,
+    reference: np.ndarray,
+    drive: np.ndarray,
     request_t: np.ndarray,
     request_nm: np.ndarray,
     request_scale: float,
@@ -127,7 +174,13 @@ def advance(
     combustion_shape, compression, inertia
         Engine tables of :class:`simulator.engine.EngineTables`.
     controller
-        :meth:`simulator.controller.IdleController.as_array`.
+        :meth:`simulator.controller.IdleController.as_array` (layout ``C_*``).
+    reference
+        (>= 1,) the controller's reference speed per speed sample of the run, rpm (the last
+        holds after the end).
+    drive
+        Torque added to each stroke's request, per stroke of the run, N*m (the last holds after
+        the end; empty: none).
     request_t, request_nm
         Test-torque requests as the ECU receives them: times (s, increasing) and values (N*m);
         the ECU holds the last one received at each speed sample (zero before the first).
@@ -161,11 +214,12 @@ def advance(
     tc12, half12, half23 = params[7], 0.5 * params[8], 0.5 * params[9]
     t_loss, gain = params[10], params[11]
     inv1, inv2, inv3 = 1.0 / j1, 1.0 / j2, 1.0 / j3
-    setpoint, kp, ki = controller[0], controller[1], controller[2]
-    u_min, u_max, closed = controller[3], controller[4], controller[5] > 0.5
+    kp, ki, kd, d_tau = controller[C_KP], controller[C_KI], controller[C_KD], controller[C_D_TAU]
+    u_min, u_max, closed = controller[C_U_MIN], controller[C_U_MAX], controller[C_CLOSED] > 0.5
+    delay, latch, e_tau = int(controller[C_DELAY]), int(controller[C_LATCH]), controller[C_E_TAU]
     sigma_cv, sigma_speed, sigma_torque = sigmas[0], sigmas[1], sigmas[2]
 
-    w_set = setpoint / RPM_PER_RAD_S
+    w_set = controller[C_SETPOINT] / RPM_PER_RAD_S
     w_min, w_max = MIN_SPEED_RATIO * w_set, MAX_SPEED_RATIO * w_set
     t = state[S_T]
     t_control = state[S_T_CONTROL]
@@ -173,11 +227,17 @@ def advance(
     w1, w2, w3 = state[S_W1], state[S_W2], state[S_W3]
     delta12, delta23, backlash = state[S_DELTA12], state[S_DELTA23], state[S_BACKLASH]
     integral, request = state[S_INTEGRAL], state[S_REQUEST]
+    derivative, last_measured = state[S_DERIVATIVE], state[S_LAST_MEASURED]
+    error = state[S_ERROR]
     window_sum, window_pos = state[S_WINDOW_SUM], int(state[S_WINDOW_POS])
-    held = state[N_SCALARS : N_SCALARS + N_CYL]  # views: updated in place
-    window = state[N_SCALARS + N_CYL :]
+    ring_pos = int(state[S_RING_POS])
+    held = state[O_HELD:O_WINDOW]  # views: updated in place
+    window = state[O_WINDOW:O_COMMANDS]
+    commands = state[O_COMMANDS:O_REQUESTS]
+    requests = state[O_REQUESTS:]
     n_requests = request_t.shape[0]
     received = 0  # requests received so far
+    n_reference, n_drive = reference.shape[0], drive.shape[0]
 
     n_speed = 0
     n_torque = 0
@@ -187,6 +247,41 @@ def advance(
     status = STATUS_OK
     while t < t_end:
         angle_index = step % STEPS_PER_CYCLE
+        if step % STEPS_PER_SPEED_SAMPLE == 0 and step > 0:
+            if n_speed >= max_speed:
+                status = STATUS_BUFFER_FULL
+                break
+            measured = window_sum / N_WIN * RPM_PER_RAD_S + sigma_speed * speed_noise[n_speed]
+            sample = min(step // STEPS_PER_SPEED_SAMPLE, n_reference) - 1
+            elapsed = t - t_control
+            if closed:
+                error += (reference[sample] - measured - error) * (
+                    1.0 if e_tau <= 0.0 else elapsed / (e_tau + elapsed)
+                )
+                integral = min(max(integral + ki * error * elapsed, u_min), u_max)
+                if kd > 0.0 and elapsed > 0.0:
+                    rate = (last_measured - measured) / elapsed
+                    derivative += (rate - derivative) * elapsed / (d_tau + elapsed)
+                command = min(max(kp * error + integral + kd * derivative, u_min), u_max)
+            else:
+                command = integral
+            last_measured = measured
+            t_control = t
+            ring_pos = (ring_pos + 1) % N_RING
+            commands[ring_pos] = command
+            while received < n_requests and request_t[received] <= t:
+                received += 1
+            test = request_scale * request_nm[received - 1] if received > 0 else 0.0
+            request = commands[(ring_pos - delay) % N_RING] + test
+            requests[ring_pos] = request
+            out_speed[n_speed, 0] = t
+            out_speed[n_speed, 1] = measured
+            out_speed[n_speed, 2] = request
+            if n_drive > 0:  # T_ecu as the next stroke would take it
+                out_speed[n_speed, 2] += drive[min((step + 1) // STEPS_PER_STROKE, n_drive - 1)]
+            out_speed[n_speed, 3] = delta12
+            out_speed[n_speed, 4] = delta23
+            n_speed += 1
         if step % STEPS_PER_STROKE == 0:
             stroke = step // STEPS_PER_STROKE
             if n_started >= max_strokes:
@@ -198,30 +293,11 @@ def advance(
                 out_torque[n_torque, 1] = held[finished] + sigma_torque * torque_noise[n_torque]
                 out_torque[n_torque, 2] = finished
                 n_torque += 1
-            held[stroke % N_CYL] = gain * request * (1.0 + sigma_cv * cv_noise[n_started])
+            latched = requests[(ring_pos - latch) % N_RING]
+            if n_drive > 0:
+                latched += drive[min(stroke, n_drive - 1)]
+            held[stroke % N_CYL] = gain * latched * (1.0 + sigma_cv * cv_noise[n_started])
             n_started += 1
-        if step % STEPS_PER_SPEED_SAMPLE == 0 and step > 0:
-            if n_speed >= max_speed:
-                status = STATUS_BUFFER_FULL
-                break
-            measured = window_sum / N_WIN * RPM_PER_RAD_S + sigma_speed * speed_noise[n_speed]
-            if closed:
-                error = setpoint - measured
-                integral = min(max(integral + ki * error * (t - t_control), u_min), u_max)
-                command = min(max(kp * error + integral, u_min), u_max)
-            else:
-                command = integral
-            t_control = t
-            while received < n_requests and request_t[received] <= t:
-                received += 1
-            test = request_scale * request_nm[received - 1] if received > 0 else 0.0
-            request = command + test
-            out_speed[n_speed, 0] = t
-            out_speed[n_speed, 1] = measured
-            out_speed[n_speed, 2] = request
-            out_speed[n_speed, 3] = delta12
-            out_speed[n_speed, 4] = delta23
-            n_speed += 1
 
         if w1 < w_min or w1 > w_max:
             status = STATUS_SPEED_RANGE
@@ -231,14 +307,14 @@ def advance(
         for cylinder in range(N_CYL):
             shifted = (angle_index - cylinder * STEPS_PER_STROKE) % STEPS_PER_CYCLE
             engine += held[cylinder] * combustion_shape[shifted]
-        drive = engine - t_loss
+        net = engine - t_loss
         h = dt / n_sub
         for _ in range(n_sub):
             rate12 = w1 - w2
             rate23 = w2 - w3
             torque12 = dmf_smooth_torque(delta12, rate12, c12, d12, half12)
             torque23 = backlash_torque(delta23, rate23, backlash, c23, d23, half23)
-            w1 += h * inv1 * (drive - torque12)
+            w1 += h * inv1 * (net - torque12)
             w2 += h * inv2 * (torque12 - torque23)
             w3 += h * inv3 * torque23
             impulse = friction_impulse(w1 - w2, inv1, inv2, tc12, h)
@@ -258,7 +334,10 @@ def advance(
     state[S_W1], state[S_W2], state[S_W3] = w1, w2, w3
     state[S_DELTA12], state[S_DELTA23], state[S_BACKLASH] = delta12, delta23, backlash
     state[S_INTEGRAL], state[S_REQUEST] = integral, request
+    state[S_DERIVATIVE], state[S_LAST_MEASURED] = derivative, last_measured
+    state[S_ERROR] = error
     state[S_WINDOW_SUM], state[S_WINDOW_POS] = window_sum, window_pos
+    state[S_RING_POS] = ring_pos
     return n_speed, n_torque, status
 
 
@@ -269,6 +348,8 @@ def run_plant(
     compression: np.ndarray,
     inertia: np.ndarray,
     controller: np.ndarray,
+    reference: np.ndarray,
+    drive: np.ndarray,
     request_t: np.ndarray,
     request_nm: np.ndarray,
     request_scale: float,
@@ -295,11 +376,27 @@ def run_plant(
     while n_zero < request_t.shape[0] and request_t[n_zero] <= 0.0:
         n_zero += 1
     test = request_scale * request_nm[n_zero - 1] if n_zero > 0 else 0.0
-    state = initial_state(params, controller, test)
+    state = initial_state(params, controller, reference, drive, test)
     return advance(
-        state, params, combustion_shape, compression, inertia, controller, request_t,
-        request_nm, request_scale, t_end, n_sub, sigmas, cv_noise, speed_noise, torque_noise,
-        out_speed, out_torque,
+        state,
+        params,
+        combustion_shape,
+        compression,
+        inertia,
+        controller,
+        reference,
+        drive,
+        request_t,
+        request_nm,
+        request_scale,
+        t_end,
+        n_sub,
+        sigmas,
+        cv_noise,
+        speed_noise,
+        torque_noise,
+        out_speed,
+        out_torque,
     )
 
 
@@ -310,6 +407,8 @@ def run_plant_batch(
     compression: np.ndarray,
     inertia: np.ndarray,
     controller: np.ndarray,
+    reference: np.ndarray,
+    drive: np.ndarray,
     request_t: np.ndarray,
     request_nm: np.ndarray,
     request_scale: np.ndarray,
@@ -325,16 +424,31 @@ def run_plant_batch(
 ) -> None:
     """Run :func:`run_plant` for many jobs in parallel over the cores.
 
-    All jobs share the request table; every argument that differs per job has a leading job
-    axis: ``params`` (n, 12), ``request_scale`` (n,), ``n_sub`` (n,), the noise draws and the
-    outputs. ``counts`` (n, 3) receives each job's speed count, torque count and status.
+    All jobs share the controller, reference, drive and request tables; every argument that
+    differs per job has a leading job axis: ``params`` (n, 12), ``request_scale`` (n,),
+    ``n_sub`` (n,), the noise draws and the outputs. ``counts`` (n, 3) receives each job's
+    speed count, torque count and status.
     """
     for job in numba.prange(params.shape[0]):
         n_speed, n_torque, status = run_plant(
-            params[job], combustion_shape, compression, inertia, controller, request_t,
-            request_nm, request_scale[job], t_end, n_sub[job], sigmas, cv_noise[job],
+            params[job],
+            combustion_shape,
+            compression,
+            inertia,
+            controller,
+            reference,
+            drive,
+            request_t,
+            request_nm,
+            request_scale[job],
+            t_end,
+            n_sub[job],
+            sigmas,
+            cv_noise[job],
             speed_noise[job],
-            torque_noise[job], out_speed[job], out_torque[job],
+            torque_noise[job],
+            out_speed[job],
+            out_torque[job],
         )
         counts[job, 0] = n_speed
         counts[job, 1] = n_torque

@@ -40,10 +40,14 @@ class PlantStepper:
         self._params = parameters.as_array()
         self._tables = self.options.tables()
         self._controller = self.options.controller.as_array()
+        self._reference = self.options.controller.reference()
+        self._drive = np.zeros(0)
         self._sigmas = self.options.sigmas()
         self._n_sub = substeps(self._params, self.options.controller)
         self._rng = np.random.default_rng(seed)
-        self._state = initial_state(self._params, self._controller, 0.0)
+        self._state = initial_state(
+            self._params, self._controller, self._reference, self._drive, 0.0
+        )
         self.stalled = False
 
     @property
@@ -53,8 +57,7 @@ class PlantStepper:
 
     def set_setpoint(self, setpoint_rpm: float) -> None:
         """Change the idle controller's set-point, rpm (a disturbance for fault tests)."""
-        self._controller = self._controller.copy()
-        self._controller[0] = setpoint_rpm
+        self._reference = np.array([setpoint_rpm])
 
     def advance(self, t_end: float, test_nm: float) -> tuple[np.ndarray, np.ndarray]:
         """Advance to ``t_end`` with the ECU holding the test torque ``test_nm``.
@@ -86,6 +89,8 @@ class PlantStepper:
             self._tables.compression,
             self._tables.inertia,
             self._controller,
+            self._reference,
+            self._drive,
             np.array([self.time_s]),
             np.array([test_nm]),
             1.0,

@@ -242,6 +242,8 @@ def simulate(
         tables.compression,
         tables.inertia,
         options.controller.as_array(),
+        options.controller.reference(),
+        np.zeros(0),
         request_t,
         request_nm,
         1.0,
@@ -335,6 +337,8 @@ def replay_batch(
     seed: int = 0,
     streams: np.ndarray | None = None,
     signs: np.ndarray | None = None,
+    reference: np.ndarray | None = None,
+    drive: np.ndarray | None = None,
 ) -> BatchResult:
     """Simulate many parameter sets driven by one table of test-torque requests, in parallel.
 
@@ -363,6 +367,12 @@ def replay_batch(
         (n_jobs,) +1 or -1 on each job's draws, all +1 by default: a job given -1 sees its
         stream's draws negated (antithetic variates: a pair of jobs with the same stream and
         opposite signs cancels the noise's first-order effect in their mean).
+    reference
+        The controller's reference speed per speed sample, rpm (the last holds on); the
+        controller's set-point by default (a vehicle's own ECU).
+    drive
+        Torque added to each stroke's request, N*m, per stroke from the start; none by default
+        (see :mod:`simulator.kernel`).
 
     Returns
     -------
@@ -397,6 +407,11 @@ def replay_batch(
         cv_noise[rows] = sign * rng.standard_normal(n_stroke_max)
         torque_noise[rows] = sign * rng.standard_normal(n_stroke_max)
         speed_noise[rows] = sign * rng.standard_normal(n_speed_max)
+    reference = options.controller.reference() if reference is None else reference
+    reference = np.ascontiguousarray(reference, dtype=np.float64)
+    drive = np.ascontiguousarray(np.zeros(0) if drive is None else drive, dtype=np.float64)
+    if reference.ndim != 1 or len(reference) == 0 or drive.ndim != 1:
+        raise ConfigError("reference must be a non-empty 1-D array and drive a 1-D array")
     n_sub = np.array([substeps(row, options.controller) for row in params], dtype=np.int64)
     out_speed = np.empty((n_jobs, n_speed_max, 5))
     out_torque = np.empty((n_jobs, n_stroke_max, 3))
@@ -408,6 +423,8 @@ def replay_batch(
         tables.compression,
         tables.inertia,
         options.controller.as_array(),
+        reference,
+        drive,
         request_t,
         request_nm,
         scales,

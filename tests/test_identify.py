@@ -4,18 +4,15 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 import pytest
 
 from dtid.errors import AnalysisError, ConfigError
 from identification.identify import (
-    Objective,
     SearchSettings,
     amplitude_levels,
     engine_gain,
     identify,
     split_runs,
-    stroke_lag,
 )
 from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
 from identification.pipeline import run_identification
@@ -169,33 +166,6 @@ def test_reference_vehicle_from_a_noisy_recording(reference: DrivetrainParameter
     fitted = report.fit.tests[0]
     assert 0.027 < fitted.combustion_variation < measured.combustion_variation
     assert report.fit_objective(result.parameters) == pytest.approx(result.objective, rel=1e-9)
-
-
-def test_the_stroke_stamps_lag_is_found(
-    reference: DrivetrainParameters, reference_data: TestData
-) -> None:
-    """Exact stamps (a simulated recording) need about no lag; stamped half a stroke late, as
-    frames arrive after the stroke they report, the lag found is about half a stroke, and the
-    replay without it misses the firing phase's peak (see test_model_response)."""
-    measured = MeasuredTest.from_data("reference", reference_data, 0.25)
-    par = Parameterization.around(reference, measured.idle_torque_nm, reference.K)
-    truth = par.unit(np.array([[theta_from_parameters(reference)[n] for n in THETA_NAMES]]))[0]
-    test = measured.model_test([1, 2])
-    period = float(np.median(np.diff(test.stroke_ends_s)))
-    drv = [[measured.estimates[i].drv_db for i in (1, 2)]]
-
-    def off_by(lag: float, expected: float) -> float:
-        """Distance between two lags on the stroke's circle, s."""
-        return abs((lag - expected + period / 2) % period - period / 2)
-
-    exact = Objective(par, [test], drv)
-    assert off_by(stroke_lag(exact, truth), 0.0) <= 0.25 * period
-    late = dataclasses.replace(test, stroke_ends_s=test.stroke_ends_s + 0.5 * period)
-    objective = Objective(par, [late], drv)
-    lag = stroke_lag(objective, truth)
-    assert off_by(lag, 0.5 * period) <= 0.25 * period
-    found = objective.replacing(stroke_lag_s=lag)(truth[None])[0]
-    assert objective(truth[None])[0] > 1.3 * found
 
 
 def test_a_known_combustion_variation_replaces_the_idle_estimate(

@@ -97,30 +97,34 @@ def test_set_point_is_the_speeds_time_mean(reference_measured: MeasuredTest) -> 
     assert reference_measured.setpoint_rpm == pytest.approx(1000.0, abs=0.02)
 
 
-def test_each_run_is_replayed_from_a_stroke_end_before_it(
+def test_each_run_is_replayed_from_a_stroke_settle_s_before_it(
     reference_measured: MeasuredTest,
 ) -> None:
     test = reference_measured.model_test([1, 2])
-    stroke_ends = reference_measured.data.mean_torque.t
+    loop = reference_measured.loop
+    stroke_s = 2 * float(np.median(np.diff(loop.t)))
     assert [r.runs for r in test.replays] == [(0,), (1,)]
     for replay, estimate in zip(test.replays, test.estimates, strict=True):
         wanted = estimate.run.start_s - SETTLE_S
-        assert replay.offset_s in stroke_ends
-        assert wanted - 0.035 < replay.offset_s <= wanted  # a stroke lasts 30 ms at 1000 rpm
-        assert replay.requests.t[0] >= 0.0
+        assert replay.start_event is not None
+        assert (replay.start_event - loop.first_stroke) % 2 == 0  # a stroke starts there
+        assert wanted - 1.3 * stroke_s < replay.offset_s <= wanted + 0.3 * stroke_s
 
 
-def test_the_recordings_firing_phase_is_reproduced(
+def test_the_vehicles_strokes_are_repeated(
     reference: DrivetrainParameters, reference_measured: MeasuredTest
 ) -> None:
     """At 10 N*m the stroke-sampled chirp's alias meets the free play's harmonic near f_s/3
-    (11 Hz at 1000 rpm): replayed in phase with the recording's strokes the model at the truth
-    follows the measured peak, half a stroke out of phase it misses it by over a decibel."""
+    (11 Hz at 1000 rpm): with each model stroke taking the request the vehicle's stroke took,
+    the model at the truth follows the measured peak; with the strokes a crank event off, so
+    that they take the other requests, it misses it by over a decibel."""
     test = reference_measured.model_test([2])
     measured = reference_measured.estimates[2].drv_db
     in_phase = model_drv_db(reference.as_array()[None], test)[0][0]
-    stroke_ends = reference_measured.data.mean_torque.t
-    shifted = dataclasses.replace(test, stroke_ends_s=stroke_ends + 0.5 * np.diff(stroke_ends)[0])
+    loop = reference_measured.loop
+    shifted = dataclasses.replace(
+        test, loop=dataclasses.replace(loop, first_stroke=loop.first_stroke + 1)
+    )
     out_of_phase = model_drv_db(reference.as_array()[None], shifted)[0][0]
     assert np.abs(in_phase - measured).max() < 0.6
     assert np.abs(out_of_phase - measured).max() > 1.0

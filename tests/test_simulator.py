@@ -161,6 +161,8 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
             tables.compression,
             tables.inertia,
             options.controller.as_array(),
+            options.controller.reference(),
+            np.zeros(0),
             requests.request_t,
             requests.test_torque_nm,
             1.0,

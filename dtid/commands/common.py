@@ -13,6 +13,22 @@ from dtid.errors import ConfigError, RecordingError
 from identification.frf import DEFAULT_RESOLUTION_HZ
 from identification.recording import load_recording
 from identification.test_setup import MeasuredTest
+from simulator.vehicle_data import VehicleData, load_vehicle_data
+
+
+def add_vehicle_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--vehicle``."""
+    parser.add_argument(
+        "--vehicle",
+        type=Path,
+        help="vehicle file (TOML) whose [engine] table gives the crank-train data the model "
+        "engine needs (default: the reference engine; see docs/model-assumptions.md)",
+    )
+
+
+def vehicle_data(args: argparse.Namespace) -> VehicleData:
+    """The vehicle data of ``--vehicle``, or the reference engine's."""
+    return load_vehicle_data(args.vehicle) if args.vehicle else VehicleData()
 
 
 def add_interface_options(parser: argparse.ArgumentParser) -> None:
@@ -47,13 +63,17 @@ def write_json(path: Path, document: object) -> None:
 
 
 def measured_tests(
-    recordings: Sequence[Path], dbc: Path | None, signals: Path | None
+    recordings: Sequence[Path],
+    dbc: Path | None,
+    signals: Path | None,
+    vehicle: VehicleData | None = None,
 ) -> list[MeasuredTest]:
     """Load recordings and estimate their runs' FRFs for the identification commands."""
     interface = load_interface(dbc, signals)
+    engine = (vehicle or VehicleData()).engine
     return [
         MeasuredTest.from_data(
-            str(path), load_recording(path, interface).test_data(), DEFAULT_RESOLUTION_HZ
+            str(path), load_recording(path, interface).test_data(), DEFAULT_RESOLUTION_HZ, engine
         )
         for path in recordings
     ]

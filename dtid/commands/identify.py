@@ -18,8 +18,10 @@ from typing import Any
 
 from dtid.commands.common import (
     add_interface_options,
+    add_vehicle_option,
     measured_tests,
     positive_float,
+    vehicle_data,
     write_json,
 )
 from dtid.errors import ConfigError
@@ -52,6 +54,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="amplitudes that identify (default: the two largest); the others validate",
     )
     add_bounds_options(parser)
+    add_vehicle_option(parser)
     add_search_options(parser)
     parser.add_argument("--json", type=Path, help="write the result as JSON")
     parser.add_argument("--plot", type=Path, help="overlay measured and identified FRFs (Fig. 6)")
@@ -174,6 +177,16 @@ def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> Non
             f"combustion variation of {name}: {value:.4f} in the model ({source}); "
             f"{separated[name]:.4f} judged at the identified parameters"
         )
+    for name, loop in document["idle_loop"].items():
+        detail = (
+            f"the stroke takes the request {loop['latch_events']} crank events before its "
+            f"report, K {loop['latch_gain']:.3f}, residual {loop['latch_residual_nm']:.2f} N*m"
+            if loop["mode"] == "recorded_request"
+            else "no torque request recorded"
+        )
+        print(
+            f"idle loop of {name}: model driven by the {loop['mode'].replace('_', ' ')} ({detail})"
+        )
     print(f"{document['parameter_sets']} parameter sets simulated in {document['seconds']:.0f} s")
 
 
@@ -211,7 +224,8 @@ def run(args: argparse.Namespace) -> int:
     bounds = parse_bounds(args.bounds)
     settings = search_settings(args)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
-    tests = measured_tests(args.recordings, args.dbc, args.signals)
+    vehicle = vehicle_data(args)
+    tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle)
     report = run_identification(
         tests,
         prior,
@@ -224,6 +238,7 @@ def run(args: argparse.Namespace) -> int:
         progress=_progress,
     )
     print_report(report.as_dict(), fixed)
+    print(vehicle.describe())
     if args.json:
         write_json(args.json, report.as_dict())
     if args.plot:

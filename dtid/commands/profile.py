@@ -10,7 +10,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dtid.commands.common import add_interface_options, measured_tests, write_json
+from dtid.commands.common import (
+    add_interface_options,
+    add_vehicle_option,
+    measured_tests,
+    vehicle_data,
+    write_json,
+)
 from dtid.commands.identify import add_bounds_options, parse_bounds, parse_fixed
 from dtid.errors import ConfigError
 from identification.pipeline import run_identification
@@ -30,6 +36,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--points", type=int, default=7, help="grid points (default: 7)")
     parser.add_argument("--fix", nargs="+", default=[], metavar="NAME=VALUE")
     add_bounds_options(parser)
+    add_vehicle_option(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=Path, help="write the profiles as JSON")
     parser.add_argument("--plot", type=Path, help="plot the profiles")
@@ -47,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         profiles = profile_setup(setup(args.setup), points=args.points, seed=args.seed)
         title = f"Setup {args.setup}"
     else:
-        tests = measured_tests(args.recordings, args.dbc, args.signals)
+        tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle_data(args))
         report = run_identification(
             tests,
             load_parameters(args.prior) if args.prior else reference_parameters(),

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from acquisition.config import load_config
+from dtid.commands.common import add_vehicle_option, vehicle_data
 from dtid.commands.identify import add_search_options, print_report, search_settings
 from identification.worker import Worker, WorkerOptions, leave_a_core_to_the_bus
 from simulator.parameters import load_parameters
@@ -36,6 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         type=Path,
         help="parameter set (TOML) the default +-100 %% bounds centre on (default: reference)",
     )
+    add_vehicle_option(parser)
     add_search_options(parser)
     parser.add_argument(
         "--json", type=Path, help="result file (default: identification.json beside the log)"
@@ -80,6 +82,7 @@ def run(args: argparse.Namespace) -> int:
         settings=settings,
         profile_points=args.profile_points,
         prior=load_parameters(args.prior) if args.prior else None,
+        vehicle=vehicle_data(args),
         json_path=args.json,
         plot_path=args.plot,
         plot=not args.no_plot,
