@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from identification.identify import Objective, SearchSettings, refine
-from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
+from identification.parameterization import THETA_NAMES, theta_from_parameters
 from identification.pipeline import IdentificationReport, run_identification
 from identification.test_setup import MeasuredTest
 from identification.testdata import from_simulation
@@ -46,8 +46,8 @@ def nearest_optimum(
 ) -> tuple[dict[str, float], float]:
     """The optimum the search's last two stages reach from the truth (setup-4 values by name)
     and eq. (17) there: lower than what the search found, and the search missed it."""
-    fixed = {n: v for n, v in report.fixed.items() if n in THETA_NAMES}
-    par = Parameterization.around(reference_parameters(), report.t_loss, report.gain, fixed=fixed)
+    par = report.parameterization
+    assert par is not None
     objective = Objective(
         par,
         [t.model_test(runs) for t, runs in zip(report.fit.tests, report.fit.runs, strict=True)],

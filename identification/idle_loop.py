@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.errors import AnalysisError
+from identification.combustion import variation_and_noise
 from identification.testdata import Series, TestData
 from simulator.angle_grid import RPM_PER_RAD_S
 from simulator.controller import IdleController
@@ -111,6 +112,10 @@ class IdleLoop:
     residual_nm
         RMS of the measured torque less K times the latched request, N*m: the sensor's noise
         and the combustion variation when the latch is right.
+    combustion_variation, torque_noise_nm
+        The two told apart (:func:`identification.combustion.variation_and_noise`): relative
+        variation of each stroke's delivered torque, 1, and the torque sensor's noise, N*m;
+        NaN for a drive by measured torque.
     """
 
     mode: str
@@ -122,6 +127,8 @@ class IdleLoop:
     latch_samples: int = 0
     gain: float = 1.0
     residual_nm: float = 0.0
+    combustion_variation: float = float("nan")
+    torque_noise_nm: float = float("nan")
 
     @property
     def by_request(self) -> bool:
@@ -194,6 +201,8 @@ class IdleLoop:
             "latch_events": self.latch_samples,
             "latch_gain": self.gain,
             "latch_residual_nm": self.residual_nm,
+            "combustion_variation": _finite(self.combustion_variation),
+            "torque_noise_nm": _finite(self.torque_noise_nm),
             "tracking_bandwidth_hz": TRACK_BANDWIDTH_HZ,
             "tracking_kp_nm_per_rpm": controller.kp_nm_per_rpm,
             "tracking_ki_nm_per_rpm_s": controller.ki_nm_per_rpm_s,
@@ -217,8 +226,15 @@ def idle_loop(data: TestData) -> IdleLoop:
     if data.torque_request is not None and len(data.torque_request) > 1:
         request = _per_event(data.torque_request, t)
         lag, gain, residual = latch(request, strokes, data.mean_torque.value)
+        at = strokes - lag
+        ok = (at >= 0) & (at < len(request))
+        variation, noise = variation_and_noise(
+            gain * request[at[ok]], data.mean_torque.value[ok]
+        )
         first = int(strokes[0]) - lag
-        return IdleLoop(RECORDED_REQUEST, t, speed, test, request, first, lag, gain, residual)
+        return IdleLoop(
+            RECORDED_REQUEST, t, speed, test, request, first, lag, gain, residual, variation, noise
+        )
     # a stroke's mean torque is known, and reported, when the stroke ends: the stroke started
     # SAMPLES_PER_STROKE events before its report
     measured = _per_event(data.mean_torque, t)
@@ -258,6 +274,11 @@ def latch(request: np.ndarray, strokes: np.ndarray, torque: np.ndarray) -> tuple
         if residual < best[2]:
             best = (lag, gain, residual)
     return best
+
+
+def _finite(value: float) -> float | None:
+    """A JSON number, or None for NaN."""
+    return value if np.isfinite(value) else None
 
 
 def _event_grid(speed: Series) -> tuple[np.ndarray, np.ndarray]:

@@ -42,10 +42,40 @@ THETA_UNITS: dict[str, str] = {
 }
 PRIOR_SPAN = 1.0
 """Default bounds: the prior value times (1 - span, 1 + span), i.e. +-100 % (section IV-B)."""
+PASSENGER_CAR_RANGES: dict[str, tuple[float, float]] = {
+    "x1": (0.05, 0.95),  # J1 / (J1 + J2): DMF primary side against secondary side
+    "x12": (0.05, 0.99),  # (J1 + J2) / J_sum: J3 in neutral is at least 1 % of the total
+    "c12": (0.0, 1000.0),  # N*m/rad: first-stage DMF arc springs, up to 17 N*m/deg
+    "c23": (0.0, 300.0),  # N*m/rad: clutch-disc pre-damper and input shaft, up to 5 N*m/deg
+    "d12": (0.0, 3.0),  # N*m*s/rad: DMF grease and arc-spring rubbing
+    "d23": (0.0, 1.0),  # N*m*s/rad: pre-damper damping
+    "Tc12": (0.0, 4.0),  # N*m: DMF base friction at small angles
+    "eps12": (0.0, 0.1),  # rad: DMF free angle, up to 5.7 deg
+    "eps23": (0.0, 0.06),  # rad: clutch-hub spline and input-gear play, up to 3.4 deg
+}
+"""Where a passenger car's drivetrain at idle in neutral may lie, SI units: the default search
+box covers these ranges as well as the prior +-100 % (one reference car's +-100 % leaves out
+cars whose free plays or friction are 2-5 times its own, and the search cannot find a truth
+outside its box). J_sum is not listed: the FRF's low-frequency asymptote starts it."""
 MIN_INERTIA_FRACTION = 0.05
 """Lower bound on J_sum (and on K where it is free) as a fraction of its prior, and the margin
 keeping x1, x12 in (0, 1): a vanishing inertia or engine gain cannot idle, so +-100 % bounds are
 narrowed there."""
+
+
+def passenger_car_bounds(
+    prior: DrivetrainParameters, span: float = PRIOR_SPAN
+) -> dict[str, tuple[float, float]]:
+    """The default search box: the prior +- ``span`` widened to :data:`PASSENGER_CAR_RANGES`
+    (the mass ratios: those ranges), by setup-4 name, SI units (J_sum is left to the span)."""
+    centre = theta_from_parameters(prior)
+    box = {
+        name: (min(centre[name] * (1 - span), lo), max(centre[name] * (1 + span), hi))
+        for name, (lo, hi) in PASSENGER_CAR_RANGES.items()
+    }
+    for ratio in ("x1", "x12"):  # a mass ratio's range is its physical one
+        box[ratio] = PASSENGER_CAR_RANGES[ratio]
+    return box
 
 
 def theta_from_parameters(p: DrivetrainParameters) -> dict[str, float]:

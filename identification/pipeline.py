@@ -35,7 +35,12 @@ from identification.identify import (
 )
 from identification.model_response import model_drv_db
 from identification.objective import nrmse
-from identification.parameterization import PRIOR_SPAN, THETA_UNITS, Parameterization
+from identification.parameterization import (
+    PRIOR_SPAN,
+    THETA_UNITS,
+    Parameterization,
+    passenger_car_bounds,
+)
 from identification.profile import Profile, profile, with_structure
 from identification.runs import ZERO_FRACTION
 from identification.start_values import start_thetas
@@ -178,18 +183,13 @@ class IdentificationReport:
     fit, validation
         The identification and validation runs, with the combustion variation the model
         engine repeated in them.
-    variation_without_noise
-        Per recording, the combustion variation with the torque sensor's noise taken out,
-        judged at the identified parameters
-        (:meth:`identification.test_setup.MeasuredTest.without_sensor_noise`); the fit used
-        the same estimate judged at the best parameters of its first stage
-        (:attr:`identification.identify.SearchSettings.separate_sensor_noise`), unless
-        ``--fix combustion_variation=`` gave the value.
     inseparable
         The free parameters the identification's excitation cannot identify, whatever their
         profiles show, with the reason (:func:`identification.analytic.inseparable`: a
         stiffness and its free play from one amplitude); their verdict is ``no``, with or
         without profiles.
+    parameterization
+        The search box and the values held (to score or refine other sets in it).
     """
 
     identification: Identification
@@ -199,8 +199,8 @@ class IdentificationReport:
     t_loss: float
     fit: RunSelection | None = None
     validation: RunSelection | None = None
-    variation_without_noise: Mapping[str, float] = dataclasses.field(default_factory=dict)
     inseparable: Mapping[str, str] = dataclasses.field(default_factory=dict)
+    parameterization: Parameterization | None = None
 
     def validated(self, selection: RunSelection) -> IdentificationReport:
         """The report with the validation NRMSE of the identified parameters on these runs, the
@@ -276,10 +276,17 @@ class IdentificationReport:
             "identifiability_notes": dict(self.inseparable),
             "fixed": dict(self.fixed),
             "T_loss": self.t_loss,
-            "combustion_variation": {t.name: t.combustion_variation for t in self.fit.tests}
+            "combustion_variation": {
+                t.name: t.combustion_variation if t.loop.by_request else 0.0
+                for t in self.fit.tests
+            }
             if self.fit
             else {},
-            "combustion_variation_without_sensor_noise": dict(self.variation_without_noise),
+            "combustion_variation_without_sensor_noise": {
+                t.name: t.loop.as_dict()["combustion_variation"] for t in self.fit.tests
+            }
+            if self.fit
+            else {},
             "idle_loop": {t.name: t.loop.as_dict() for t in self.fit.tests} if self.fit else {},
             "vehicle_data": {"engine": engine_table(self.fit.tests[0].engine)} if self.fit else {},
             "objective": result.objective,
@@ -320,7 +327,7 @@ def run_identification(
     profile_points: int = 5,
     progress: Progress | None = None,
     resolution_hz: float = DEFAULT_RESOLUTION_HZ,
-    span: float = PRIOR_SPAN,
+    span: float | None = None,
 ) -> IdentificationReport:
     """Identify from measured tests, profile every free parameter and validate.
 
@@ -346,7 +353,8 @@ def run_identification(
         Welch resolution the tests were estimated with.
     span
         Relative half-width of the bounds around the prior where ``bounds`` names none (1 is
-        the paper's +-100 %).
+        the paper's +-100 %); None: +-100 % widened to a passenger car's ranges
+        (:func:`identification.parameterization.passenger_car_bounds`).
     """
     selection = identification_runs(tests, identify_amplitudes, resolution_hz)
     report = identify_runs(
@@ -363,7 +371,7 @@ def identify_runs(
     settings: SearchSettings | None = None,
     profile_points: int = 5,
     progress: Progress | None = None,
-    span: float = PRIOR_SPAN,
+    span: float | None = None,
 ) -> IdentificationReport:
     """Identify from held-out identification runs and profile; no validation yet.
 
@@ -392,18 +400,14 @@ def identify_runs(
         if "T_loss" in operating
         else float(np.mean([t.idle_torque_nm for t in tests]))
     )
+    if span is None:  # the prior's +-100 % and a passenger car's range
+        bounds = {**passenger_car_bounds(prior), **(bounds or {})}
+        span = PRIOR_SPAN
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds, span=span)
     starts = start_thetas(selection.estimates(), prior)
     settings = settings or SearchSettings()
-    if "combustion_variation" in operating:  # the engineer's value stands
-        settings = dataclasses.replace(settings, separate_sensor_noise=False)
     result = identify(tests, par, ident, [[] for _ in tests], settings, progress, starts=starts)
-    selection = with_variation(selection, result.combustion_variation)
     tests = selection.tests
-    without_noise = {  # judged at the final parameters, the fit's after stage 1
-        t.name: t.without_sensor_noise(result.parameters.as_array()).combustion_variation
-        for t in tests
-    }
     reasons = inseparable(
         par.free, len(amplitude_levels(e.run.amplitude_nm for e in selection.estimates()))
     )
@@ -436,6 +440,6 @@ def identify_runs(
         gain,
         t_loss,
         fit=selection,
-        variation_without_noise=without_noise,
         inseparable=reasons,
+        parameterization=par,
     )

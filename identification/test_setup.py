@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import dataclasses
-import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from dtid.errors import AnalysisError
-from identification.combustion import separated_variation, stroke_variation
+from identification.combustion import stroke_variation
 from identification.frf import FrfEstimate, estimate_frf
 from identification.idle_loop import IdleLoop, idle_loop
 from identification.model_response import ModelTest
@@ -38,21 +37,20 @@ class MeasuredTest:
         FRF of every chirp run that gives one, in time order.
     setpoint_rpm
         The idle set-point, rpm: the time-weighted mean of the filtered speed from the
-        recording's first second to its end. The idle controller integrates its speed error over
-        time, so over a test that starts and ends at idle that mean is the set-point, chirps
-        included (0.01 rpm on a simulated 192 s test); the idle samples alone, a few seconds
-        between the chirps, scatter by 0.2 rpm, and their plain mean is biased by the events'
-        bunching at higher speeds. The model needs it that closely: 0.1 rpm drifts the firing
-        phase by 0.2 stroke (6 ms at 1000 rpm) over a 60 s run (see
-        :mod:`identification.model_response`).
+        recording's first second to its end. An integrating idle controller makes that mean its
+        set-point, chirps included (0.01 rpm on a simulated 192 s test). Reported; the model
+        follows the recorded speed itself (:mod:`identification.idle_loop`).
     idle_torque_nm
         Mean measured torque at idle outside the chirps, N*m: the loss torque T_loss.
     combustion_variation
-        Relative standard deviation of the idle torque from stroke to stroke: the cycle-to-cycle
-        variation the model engine repeats. As measured it includes the torque sensor's noise
-        and errs high (about 1e-4 for a clean simulated recording, the idle control's own
-        changes); :meth:`without_sensor_noise` takes the noise out once the drivetrain is
-        known.
+        Relative standard deviation of each stroke's delivered torque, the cycle-to-cycle
+        variation the model engine repeats: told apart from the torque sensor's noise where the
+        recording holds the torque request (:func:`identification.combustion.
+        variation_and_noise`); otherwise the idle scatter, sensor noise included (the model,
+        then driven by the measured torque, adds none).
+    loop
+        The recording on its crank-event grid, as the model drives its engine
+        (:mod:`identification.idle_loop`).
     """
 
     name: str
@@ -61,6 +59,7 @@ class MeasuredTest:
     setpoint_rpm: float
     idle_torque_nm: float
     combustion_variation: float
+    loop: IdleLoop = dataclasses.field(repr=False)
     unusable: tuple[tuple[ChirpRun, str], ...] = ()
     """Chirp runs that cannot give an FRF (lost frames, too short), each with the reason."""
     engine: EngineGeometry = dataclasses.field(default_factory=EngineGeometry)
@@ -101,35 +100,19 @@ class MeasuredTest:
                 f"{name}: fewer than 10 mean-torque samples at idle outside the chirps; the loss "
                 "torque T_loss cannot be measured (record a few seconds of idle before the test)"
             )
-        mean = float(np.mean(torque))
-        variation = stroke_variation(torque)
+        loop = idle_loop(data)
+        separated = loop.by_request and np.isfinite(loop.combustion_variation)
         return cls(
             name,
             data,
             tuple(estimates),
             _time_mean(data.speed),
-            mean,
-            variation,
+            float(np.mean(torque)),
+            loop.combustion_variation if separated else stroke_variation(torque),
+            loop,
             tuple(unusable),
             engine or EngineGeometry(),
         )
-
-    @functools.cached_property
-    def loop(self) -> IdleLoop:
-        """The recording on its crank-event grid, as the model drives its engine
-        (:mod:`identification.idle_loop`)."""
-        return idle_loop(self.data)
-
-    def without_sensor_noise(self, params: np.ndarray) -> MeasuredTest:
-        """This recording with the torque sensor's noise taken out of its combustion variation
-        (:func:`identification.combustion.separated_variation`), judged with the drivetrain
-        parameters ``params`` ((12,), SI units)."""
-        runs = [e.run for e in self.estimates] + [run for run, _ in self.unusable]
-        idle = _idle(self.data.mean_torque.t, runs)
-        variation = separated_variation(
-            self.data.speed, self.data.mean_torque, idle, self.setpoint_rpm, params
-        )
-        return dataclasses.replace(self, combustion_variation=variation)
 
     def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
         """The model's repetition of this recording, estimating the runs given by index

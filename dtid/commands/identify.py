@@ -72,9 +72,9 @@ def add_bounds_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--span",
         type=positive_float,
-        default=100 * PRIOR_SPAN,
         metavar="PERCENT",
-        help="bounds of every free parameter: the prior +- this (default: %(default)g %%)",
+        help="bounds of every free parameter: the prior +- this (default: the prior +- "
+        f"{100 * PRIOR_SPAN:g} %%, widened to a passenger car's ranges)",
     )
     parser.add_argument(
         "--bounds",
@@ -166,17 +166,15 @@ def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> Non
     for role, values in document["nrmse"].items():
         for label, value in values.items():
             print(f"NRMSE {role:<10} {label}: {value:.3f}")
-    separated = document["combustion_variation_without_sensor_noise"]
     for name, value in document["combustion_variation"].items():
-        source = (
-            "fixed"
-            if "combustion_variation" in fixed
-            else "the idle scatter less the torque sensor's noise"
-        )
-        print(
-            f"combustion variation of {name}: {value:.4f} in the model ({source}); "
-            f"{separated[name]:.4f} judged at the identified parameters"
-        )
+        loop = document["idle_loop"].get(name, {})
+        if "combustion_variation" in fixed:
+            source = "fixed"
+        elif loop.get("torque_noise_nm") is not None:
+            source = f"the torque sensor's {loop['torque_noise_nm']:.2f} N*m of noise told apart"
+        else:
+            source = "the idle scatter; a model driven by the measured torque adds none"
+        print(f"combustion variation of {name}: {value:.4f} ({source})")
     for name, loop in document["idle_loop"].items():
         detail = (
             f"the stroke takes the request {loop['latch_events']} crank events before its "
@@ -231,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
         prior,
         fixed=fixed,
         bounds=bounds,
-        span=args.span / 100,
+        span=None if args.span is None else args.span / 100,
         identify_amplitudes=args.identify,
         settings=settings,
         profile_points=args.profile_points,

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
             load_parameters(args.prior) if args.prior else reference_parameters(),
             fixed=parse_fixed(args.fix),
             bounds=parse_bounds(args.bounds),
-            span=args.span / 100,
+            span=None if args.span is None else args.span / 100,
             profile_points=args.points,
         )
         profiles = dict(report.profiles)
