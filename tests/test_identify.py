@@ -145,11 +145,11 @@ def test_stiffness_and_play_recovered_with_the_rest_fixed(
 
 @pytest.mark.slow
 def test_reference_vehicle_from_a_noisy_recording(reference: DrivetrainParameters) -> None:
-    """Issue 3's tolerances on the reference vehicle's default test (60 s chirps at 2, 5 and
-    10 N*m, combustion variation and sensor noise), default search, the reference as prior,
-    but the gear play's at 10 %: one recording pins it to 5.9 % (one standard deviation,
-    README "Accuracy"), so 5 % on one recording is a coin toss (this one: +5.8 %; six others
-    +0.4 to +3.1 %). Random truths and other priors do not all meet them yet."""
+    """The reference vehicle's default test (60 s chirps at 2, 5 and 10 N*m, combustion
+    variation and sensor noise), default search and box, the reference as prior: inertias,
+    mass ratios, stiffnesses and the DMF play within 5 %, the gear play within 10 % (one
+    recording pins it to 5.9 %, one standard deviation), the dampings within 20 %, the friction
+    within its scatter; and the truth fits no better than what the search found."""
     data = from_simulation(simulate(reference, seed=100))
     measured = MeasuredTest.from_data("reference", data, 0.25)
     report = run_identification([measured], reference, profile_points=0)
@@ -159,8 +159,12 @@ def test_reference_vehicle_from_a_noisy_recording(reference: DrivetrainParameter
     for name in ("J_sum", "x1", "x12", "c12", "c23", "eps12"):
         assert result.theta[name] == pytest.approx(truth[name], rel=0.05), name
     assert result.theta["eps23"] == pytest.approx(truth["eps23"], rel=0.10)
-    for name in ("d12", "d23", "Tc12"):
+    for name in ("d12", "d23"):
         assert result.theta[name] == pytest.approx(truth[name], rel=0.2), name
+    # the friction: one recording's scatter is 32-81 % (one standard deviation, linearised,
+    # benchmarks/information_bound.py), so only a gross miss is the tool's
+    assert result.theta["Tc12"] == pytest.approx(truth["Tc12"], rel=0.8)
+    assert report.fit_objective(reference) >= 0.98 * result.objective  # the search found it
     assert result.validation_nrmse["reference @ 2 N*m"] < 0.2
     # the fit used the variation told apart from the sensor's noise (3 % simulated), and its
     # NRMSE scores just that

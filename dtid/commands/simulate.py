@@ -15,6 +15,9 @@ from simulator.simulate import SimulationOptions, simulate
 from simulator.vehicle_frames import simulation_frames
 
 _DEFAULTS = TestPlan()
+VALIDATION_LAST = (5.0, 10.0, 2.0)
+"""The default chirps: the two that identify, then the one that validates (the acquisition
+daemon's order), so that nothing before the identification runs is validation data."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -34,7 +37,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--amplitudes",
         type=positive_float,
         nargs="+",
-        default=list(_DEFAULTS.amplitudes_nm),
+        default=list(VALIDATION_LAST),
         metavar="NM",
         help="chirp amplitudes in N*m, one chirp each (default: %(default)s)",
     )

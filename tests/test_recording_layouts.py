@@ -1,0 +1,95 @@
+"""Recordings as engineers bring them: any number of files, any number of chirps per file, in
+any order. The 5 and 10 N*m chirps identify and the 2 N*m chirp validates wherever it is, and the
+model repeats every identification run at the truth, whatever came before it in its file."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dtid.cli import main
+from identification.identify import engine_gain
+from identification.model_response import model_drv_db
+from identification.objective import nrmse
+from identification.pipeline import RunSelection, identification_runs, validation_runs
+from identification.test_setup import MeasuredTest
+from identification.testdata import from_simulation
+from simulator.chirp import TestPlan
+from simulator.parameters import DrivetrainParameters
+from simulator.simulate import SimulationOptions, simulate
+
+DURATION_S = 20.0
+
+
+def _recording(
+    truth: DrivetrainParameters, amplitudes: tuple[float, ...], name: str
+) -> MeasuredTest:
+    plan = TestPlan(amplitudes_nm=amplitudes, duration_s=DURATION_S)
+    data = from_simulation(simulate(truth, plan, SimulationOptions.clean()))
+    return MeasuredTest.from_data(name, data, 0.25)
+
+
+def _amplitudes(selection: RunSelection) -> list[float]:
+    return sorted(round(e.run.amplitude_nm) for e in selection.estimates())
+
+
+def _check(truth: DrivetrainParameters, tests: list[MeasuredTest]) -> None:
+    """5 and 10 N*m identify, 2 N*m validates, K comes from the identification runs, and the
+    model at the truth repeats each identification run."""
+    ident = identification_runs(tests)
+    assert _amplitudes(ident) == [5, 10]
+    assert _amplitudes(validation_runs(tests)) == [2]
+    assert engine_gain(ident.tests) == pytest.approx(truth.K, rel=0.01)
+    for test, runs in zip(ident.tests, ident.runs, strict=True):
+        curves = model_drv_db(truth.as_array()[None], test.model_test(runs))
+        for i, db in zip(runs, curves, strict=True):
+            assert nrmse(test.estimates[i].drv_db, db)[0] < 0.03, (test.name, i)
+
+
+@pytest.mark.parametrize("order", list(itertools.permutations((2.0, 5.0, 10.0))))
+def test_one_file_with_three_chirps_in_any_order(
+    reference: DrivetrainParameters, order: tuple[float, ...]
+) -> None:
+    _check(reference, [_recording(reference, order, "one file")])
+
+
+def test_three_files_of_one_chirp_each(reference: DrivetrainParameters) -> None:
+    _check(reference, [_recording(reference, (a,), f"A{a:g}") for a in (5.0, 2.0, 10.0)])
+
+
+@pytest.mark.parametrize("split", [((5.0, 2.0), (10.0,)), ((2.0, 10.0), (5.0,))])
+def test_two_files_holding_two_and_one_chirps(
+    reference: DrivetrainParameters, split: tuple[tuple[float, ...], ...]
+) -> None:
+    _check(
+        reference, [_recording(reference, chirps, f"file {i}") for i, chirps in enumerate(split)]
+    )
+
+
+def test_dtid_identify_takes_a_validation_chirp_in_a_file_of_its_own(tmp_path: Path) -> None:
+    """The paper's layout, one chirp per file: before, the search ran and the selection of the
+    runs then failed with 'no chirp run has an amplitude among 5, 10 N*m'."""
+    files = []
+    for amplitude in ("5", "10", "2"):
+        path = tmp_path / f"run_A{amplitude}.blf"
+        simulate_args = ["--amplitudes", amplitude, "--duration", "12", "--seed", amplitude]
+        assert main(["simulate", str(path), *simulate_args]) == 0
+        files.append(str(path))
+    out = tmp_path / "result.json"
+    budget = ["--generations", "2", "--popsize", "2", "--polish-evaluations", "5"]
+    assert main(["identify", *files, *budget, "--profile-points", "0", "--json", str(out)]) == 0
+    document = out.read_text()
+    assert "run_A2.blf @ 2 N*m" in document and "run_A10.blf @ 10 N*m" in document
+
+
+def test_dtid_simulate_puts_the_validation_chirp_last(tmp_path: Path) -> None:
+    path = tmp_path / "default.blf"
+    assert main(["simulate", str(path), "--duration", "12"]) == 0
+    assert main(["inspect", str(path), "--json", str(tmp_path / "i.json")]) == 0
+    runs = json.loads((tmp_path / "i.json").read_text())["runs"]
+    assert [round(r["amplitude_nm"]) for r in runs] == [5, 10, 2]
+    assert np.all(np.diff([r["start_s"] for r in runs]) > 0)
