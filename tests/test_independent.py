@@ -1,0 +1,98 @@
+"""Accuracy on recordings the product did not make (``../shared/independent``).
+
+An independent implementation of the paper's test, with its own integrator, friction law,
+engine data, idle controller, ECU timing and DBC, recorded two vehicles at 2, 5 and 10 N*m, one
+chirp per file, with their truths. Identified as an engineer would (three files, the vehicle's
+engine data from ``truth.toml``'s ``[engine]`` table, the default box and search):
+
+* the model is right about these vehicles: started at the truth, the search's last stages end
+  at an optimum within the issue's targets on every parameter, fitting the identification runs
+  within an NRMSE of 0.045 each (with the product's own idle loop imposed, the truth fitted the
+  10 N*m runs at 0.10-0.13);
+* the search finds the total inertia within its target.
+
+What is not asserted, because it does not hold yet: that the search reaches that optimum. On
+vehicle_2 it ends at eq. (17) 0.077-0.087 where the optimum near the truth is 0.066 (the gear
+coupling and the DMF friction then 9-150 % off), on vehicle_1 in the valley of the gear mode's
+frequency (J3 and c23 +90-120 %); see docs/accuracy.md. The test is skipped, and says so, where the
+recordings are not beside the repository.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dtid.commands.common import measured_tests
+from identification.identify import Objective, refine
+from identification.model_response import model_drv_db
+from identification.objective import nrmse
+from identification.parameterization import THETA_NAMES, theta_from_parameters
+from identification.pipeline import run_identification
+from simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
+from simulator.vehicle_data import load_vehicle_data
+
+INDEPENDENT = Path(__file__).resolve().parents[2] / "shared" / "independent"
+TARGETS = {
+    "J_sum": 0.05,
+    "x1": 0.05,
+    "x12": 0.05,
+    "c12": 0.05,
+    "c23": 0.05,
+    "eps12": 0.05,
+    "eps23": 0.10,
+    "d12": 0.25,
+    "d23": 0.25,
+    "Tc12": 0.20,
+}
+"""Issue 15's targets, relative: inertias, mass ratios, stiffnesses, DMF play 5 %, gear play
+10 %, dampings 25 %, friction 20 %."""
+
+
+def _vehicle(name: str) -> tuple[list, DrivetrainParameters, Path]:
+    folder = INDEPENDENT / name
+    if not folder.is_dir():
+        pytest.skip(f"independent recordings not present in {folder}")
+    files = sorted(folder.glob("run_A*.*"))
+    tests = measured_tests(
+        files,
+        folder / "oem_vehicle.dbc",
+        folder / "signals.toml",
+        load_vehicle_data(folder / "truth.toml"),
+    )
+    with (folder / "truth.toml").open("rb") as handle:
+        table = tomllib.load(handle)["drivetrain"]
+    return tests, DrivetrainParameters(**{n: table[n] for n in NAMES}), folder
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["vehicle_1", "vehicle_2"])
+def test_independent_vehicle(name: str) -> None:
+    tests, truth, _ = _vehicle(name)
+    report = run_identification(tests, reference_parameters(), profile_points=0)
+    result = report.identification
+    true_theta = theta_from_parameters(truth)
+    # the model: the optimum nearest the truth meets every target and fits each run
+    par = report.parameterization
+    fit = report.fit
+    assert par is not None and fit is not None
+    model_tests = [t.model_test(runs) for t, runs in zip(fit.tests, fit.runs, strict=True)]
+    measured = [
+        [t.estimates[i].drv_db for i in runs] for t, runs in zip(fit.tests, fit.runs, strict=True)
+    ]
+    objective = Objective(par, model_tests, measured)
+    start = par.unit(np.array([[true_theta[n] for n in THETA_NAMES]]))[0]
+    nearest, value = refine(objective, np.clip(start, 0.0, 1.0))
+    theta = dict(zip(THETA_NAMES, par.theta(nearest[None])[0], strict=True))
+    errors = {n: theta[n] / true_theta[n] - 1 for n in THETA_NAMES}
+    misses = {n: round(e, 3) for n, e in errors.items() if abs(e) > TARGETS[n]}
+    assert not misses, f"optimum nearest the truth (eq. 17 {value:.4f}): {misses}"
+    params = par.parameters(nearest[None])
+    for test, db_runs in zip(model_tests, measured, strict=True):
+        for model, data in zip(model_drv_db(params, test), db_runs, strict=True):
+            assert nrmse(data, model)[0] < 0.045
+    # the search: what it pins down reliably so far
+    assert result.theta["J_sum"] == pytest.approx(true_theta["J_sum"], rel=TARGETS["J_sum"])
