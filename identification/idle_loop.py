@@ -228,9 +228,7 @@ def idle_loop(data: TestData) -> IdleLoop:
         lag, gain, residual = latch(request, strokes, data.mean_torque.value)
         at = strokes - lag
         ok = (at >= 0) & (at < len(request))
-        variation, noise = variation_and_noise(
-            gain * request[at[ok]], data.mean_torque.value[ok]
-        )
+        variation, noise = variation_and_noise(gain * request[at[ok]], data.mean_torque.value[ok])
         first = int(strokes[0]) - lag
         return IdleLoop(
             RECORDED_REQUEST, t, speed, test, request, first, lag, gain, residual, variation, noise

@@ -8,6 +8,7 @@ mean torque at idle. Any subset of theta can be fixed.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -125,6 +126,11 @@ class Parameterization:
     gain_bounds
         (lower, upper) to identify K as well, as the last free parameter (setup 1 of section IV-B,
         which shows why the product does not: K scales with J_sum, c and d).
+    prior_inertias
+        J1, J2, J3 of the prior, kg*m^2.
+    modal
+        Whether a free stiffness's coordinate is its mode's frequency (:meth:`theta`, the
+        search's coordinates, :meth:`modal_coordinates`) rather than the stiffness itself.
     """
 
     lower: np.ndarray
@@ -133,6 +139,8 @@ class Parameterization:
     t_loss: float
     gain: float
     gain_bounds: tuple[float, float] | None = None
+    prior_inertias: tuple[float, float, float] | None = None
+    modal: bool = False
 
     @classmethod
     def around(
@@ -185,7 +193,20 @@ class Parameterization:
                 )
             i = THETA_NAMES.index(name)
             lower[i], upper[i] = lo, hi
-        return cls(np.maximum(lower, 0.0), upper, fixed, t_loss, gain, gain_bounds)
+        return cls(
+            np.maximum(lower, 0.0),
+            upper,
+            fixed,
+            t_loss,
+            gain,
+            gain_bounds,
+            (prior.J1, prior.J2, prior.J3),
+        )
+
+    def modal_coordinates(self) -> Parameterization:
+        """The same box with each free stiffness's coordinate its mode's squared frequency at the
+        prior's inertias (see :meth:`theta`): the search's coordinates."""
+        return dataclasses.replace(self, modal=self.prior_inertias is not None)
 
     @property
     def free(self) -> tuple[str, ...]:
@@ -201,7 +222,15 @@ class Parameterization:
         return float(self.lower[i]), float(self.upper[i])
 
     def theta(self, unit: np.ndarray) -> np.ndarray:
-        """Full theta (n, 10) from normalised free values (n, n_free) in [0, 1]."""
+        """Full theta (n, 10) from normalised free values (n, n_free) in [0, 1].
+
+        With :attr:`modal` coordinates a free stiffness's coordinate is its mode's squared
+        frequency at the prior's inertias, not the stiffness itself (:meth:`_modal_factors`; the
+        stiffness is kept inside its bounds): moving the inertias leaves the coordinate's mode
+        where it is, so the valleys along which an inertia and a stiffness trade (J3 and c23
+        keeping the gear mode's frequency) run along the coordinates, where differential
+        evolution's crossover can follow them.
+        """
         unit = np.atleast_2d(unit)
         theta = np.empty((unit.shape[0], len(THETA_NAMES)))
         free = 0
@@ -211,11 +240,34 @@ class Parameterization:
             else:
                 theta[:, i] = self.lower[i] + unit[:, free] * (self.upper[i] - self.lower[i])
                 free += 1
+        for name, factor in self._modal_factors(theta).items():
+            i = THETA_NAMES.index(name)
+            theta[:, i] = np.clip(theta[:, i] * factor, self.lower[i], self.upper[i])
         return theta
+
+    def _modal_factors(self, theta: np.ndarray) -> dict[str, np.ndarray]:
+        """Per free stiffness, the factor from its coordinate's value to the stiffness: the mode's
+        inertia term (1/J1 + 1/(J2 + J3) for the DMF, 1/J2 + 1/J3 for the gear coupling) at
+        the prior's inertias over the one at each row's inertias (none without :attr:`modal`)."""
+        if not self.modal or self.prior_inertias is None:
+            return {}
+        rows = theta_to_arrays(theta, 0.0, 1.0)
+        centre = np.array([self.prior_inertias])
+        terms = {
+            "c12": lambda j: 1 / j[:, 0] + 1 / (j[:, 1] + j[:, 2]),
+            "c23": lambda j: 1 / j[:, 1] + 1 / j[:, 2],
+        }
+        return {
+            name: term(centre) / term(rows)
+            for name, term in terms.items()
+            if name not in self.fixed
+        }
 
     def unit(self, theta: np.ndarray, gain: float | None = None) -> np.ndarray:
         """Normalised free values (n, n_free) of a full theta (n, 10) (and K when it is free)."""
-        theta = np.atleast_2d(theta)
+        theta = np.array(np.atleast_2d(theta), dtype=float)
+        for name, factor in self._modal_factors(theta).items():
+            theta[:, THETA_NAMES.index(name)] /= factor
         idx = [THETA_NAMES.index(n) for n in self.free if n != "K"]
         unit = (theta[:, idx] - self.lower[idx]) / (self.upper[idx] - self.lower[idx])
         if self.gain_bounds:

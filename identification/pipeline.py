@@ -277,8 +277,7 @@ class IdentificationReport:
             "fixed": dict(self.fixed),
             "T_loss": self.t_loss,
             "combustion_variation": {
-                t.name: t.combustion_variation if t.loop.by_request else 0.0
-                for t in self.fit.tests
+                t.name: t.combustion_variation if t.loop.by_request else 0.0 for t in self.fit.tests
             }
             if self.fit
             else {},

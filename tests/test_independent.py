@@ -9,13 +9,14 @@ engine data from ``truth.toml``'s ``[engine]`` table, the default box and search
   at an optimum within the issue's targets on every parameter, fitting the identification runs
   within an NRMSE of 0.045 each (with the product's own idle loop imposed, the truth fitted the
   10 N*m runs at 0.10-0.13);
-* the search finds the total inertia within its target.
+* the search fits better than the truth, and finds the total inertia, the mass ratios, the DMF
+  play and the dampings within their targets.
 
-What is not asserted, because it does not hold yet: that the search reaches that optimum. On
-vehicle_2 it ends at eq. (17) 0.077-0.087 where the optimum near the truth is 0.066 (the gear
-coupling and the DMF friction then 9-150 % off), on vehicle_1 in the valley of the gear mode's
-frequency (J3 and c23 +90-120 %); see docs/accuracy.md. The test is skipped, and says so, where the
-recordings are not beside the repository.
+What is not asserted, because it does not hold on both: the stiffnesses, J3, the gear play and
+the friction. vehicle_2 meets every target but the gear play (+15 %); on vehicle_1 the gear
+coupling trades along its mode's frequency (J3 +17 %, c23 +9 %) and the found set fits the
+recordings better than the optimum nearest the truth; see docs/accuracy.md. The test is
+skipped, and says so, where the recordings are not beside the repository.
 """
 
 from __future__ import annotations
@@ -94,5 +95,8 @@ def test_independent_vehicle(name: str) -> None:
     for test, db_runs in zip(model_tests, measured, strict=True):
         for model, data in zip(model_drv_db(params, test), db_runs, strict=True):
             assert nrmse(data, model)[0] < 0.045
-    # the search: what it pins down reliably so far
-    assert result.theta["J_sum"] == pytest.approx(true_theta["J_sum"], rel=TARGETS["J_sum"])
+    # the search: it fits better than the truth, and what it pins down on both vehicles
+    assert result.objective < report.fit_objective(truth)
+    for pinned in ("J_sum", "x1", "x12", "eps12", "d12", "d23"):
+        found = result.theta[pinned] / true_theta[pinned] - 1
+        assert abs(found) <= TARGETS[pinned], f"{pinned} {found:+.3f}"
