@@ -157,16 +157,20 @@ def load_parameters(path: str | Path) -> DrivetrainParameters:
         If the file is missing, is not TOML, or has an unknown, missing or non-physical key.
     """
     path = Path(path)
+    return parse_parameters(read_toml(path, "parameter file"), source=str(path))
+
+
+def read_toml(path: Path, kind: str) -> dict[str, object]:
+    """A TOML file's document; ConfigError naming the ``kind`` of file if it cannot be read."""
     try:
         with path.open("rb") as handle:
-            table = tomllib.load(handle)
+            return tomllib.load(handle)
     except FileNotFoundError:
-        raise ConfigError(f"parameter file {path} does not exist") from None
+        raise ConfigError(f"{kind} {path} does not exist") from None
     except IsADirectoryError:
-        raise ConfigError(f"parameter file {path} is a directory, not a TOML file") from None
+        raise ConfigError(f"{kind} {path} is a directory, not a TOML file") from None
     except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"parameter file {path} is not valid TOML: {error}") from None
-    return parse_parameters(table, source=str(path))
+        raise ConfigError(f"{kind} {path} is not valid TOML: {error}") from None
 
 
 def reference_parameters() -> DrivetrainParameters:

@@ -28,13 +28,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from dtid.errors import ConfigError
 from simulator.angle_grid import N_CYL
 from simulator.engine import EngineGeometry
+from simulator.parameters import read_toml
 
 ENGINE_KEYS: dict[str, tuple[str, str]] = {
     "bore": ("bore_m", "m"),
@@ -88,16 +88,7 @@ def load_vehicle_data(path: str | Path) -> VehicleData:
         value that is not a positive number, or an engine the model cannot be.
     """
     path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            document = tomllib.load(handle)
-    except FileNotFoundError:
-        raise ConfigError(f"vehicle file {path} does not exist") from None
-    except IsADirectoryError:
-        raise ConfigError(f"vehicle file {path} is a directory, not a TOML file") from None
-    except tomllib.TOMLDecodeError as error:
-        raise ConfigError(f"vehicle file {path} is not valid TOML: {error}") from None
-    table = document.get("engine")
+    table = read_toml(path, "vehicle file").get("engine")
     if not isinstance(table, dict):
         raise ConfigError(
             f"vehicle file {path} has no [engine] table; give the crank-train data there "

@@ -1,0 +1,69 @@
+"""Vehicle data for the model engine: the [engine] table of a vehicle file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from dtid.cli import main
+from dtid.errors import ConfigError
+from simulator.engine import EngineGeometry
+from simulator.vehicle_data import engine_table, load_vehicle_data
+
+TRUTH_LIKE = """
+[drivetrain]  # another table (a truth, a prior): not read here
+J1 = 0.16
+n_set = 850.0
+
+[engine]
+N_cyl = 4
+bore = 0.082
+r = 0.045
+l = 0.14
+eps_c = 10.0
+firing_order = [1, 3, 4, 2]
+"""
+
+
+def _file(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "vehicle.toml"
+    path.write_text(text)
+    return path
+
+
+def test_given_keys_replace_the_reference_engines(tmp_path: Path) -> None:
+    data = load_vehicle_data(_file(tmp_path, TRUTH_LIKE))
+    reference = EngineGeometry()
+    assert (data.engine.bore_m, data.engine.crank_radius_m) == (0.082, 0.045)
+    assert (data.engine.rod_length_m, data.engine.compression_ratio) == (0.14, 10.0)
+    assert data.engine.isentropic_exponent == reference.isentropic_exponent  # not given
+    assert data.given == ("bore", "r", "l", "eps_c")
+    assert engine_table(data.engine)["p_l"] == reference.manifold_pressure_pa
+    assert "bore, r, l, eps_c from" in data.describe()
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("[engine]\nstroke = 0.09\n", "unknown \\[engine\\] key 'stroke'"),
+        ("[engine]\nbore = -0.08\n", "bore = -0.08 must be > 0 m"),
+        ("[engine]\nbore = 'big'\n", "bore must be a number in m"),
+        ("[engine]\nN_cyl = 6\n", "4-cylinder four-stroke"),
+        ("[engine]\nfiring_order = [1, 2, 2, 4]\n", "firing_order must list"),
+        ("[engine]\nr = 0.2\nl = 0.15\n", "longer than the crank radius"),
+        ("[drivetrain]\nJ1 = 0.1\n", "has no \\[engine\\] table"),
+        ("[engine\n", "not valid TOML"),
+    ],
+)
+def test_a_wrong_vehicle_file_is_named(tmp_path: Path, text: str, message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_vehicle_data(_file(tmp_path, text))
+
+
+def test_a_missing_vehicle_file_is_a_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["identify", str(tmp_path / "x.blf"), "--vehicle", str(tmp_path / "no.toml")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: vehicle file {tmp_path / 'no.toml'} does not exist"]
