@@ -218,6 +218,19 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
     assert set(document["nrmse"]) == {"fit", "validation"}
     assert len(document["nrmse"]["fit"]) == 2  # 5 and 10 N*m identify
     assert document["parameters"]["K"] == pytest.approx(0.9, rel=0.03)
+    # beside the contract, the data: with the rest at the truth, 12 s chirps pin the DMF spring
+    assert document["parameters"]["c12"] == pytest.approx(300.0, rel=0.05)
+    (loop,) = document["idle_loop"].values()
+    assert loop["mode"] == "recorded_request" and loop["latch_events"] == 3
+    assert set(document["vehicle_data"]["engine"]) == {
+        "bore",
+        "r",
+        "l",
+        "eps_c",
+        "kappa",
+        "p_l",
+        "m_osc",
+    }
     assert plot.stat().st_size > 10_000
 
 
