@@ -36,6 +36,7 @@ from simulator.controller import IdleController
 from simulator.engine import EngineGeometry
 from simulator.parameters import DrivetrainParameters, reference_parameters
 from simulator.simulate import SimulationOptions, simulate
+from simulator.vehicle_data import VehicleData
 
 TRUTH_SPREAD = 0.4
 """Random truths lie within +-40 % of the reference."""
@@ -62,7 +63,8 @@ def draw_vehicle(index: int) -> SimulationOptions:
     0.05-0.5 Hz, a derivative term on a third of the vehicles, an output delay of 0-3 crank
     events, a stroke latching the request 0-2 events before it starts, the error low-passed
     on half of them; the crank train within typical petrol-engine ranges; a combustion
-    variation of 1-4 %, torque-sensor noise of 0.1-0.5 N*m and speed noise of 0.1-0.4 rpm."""
+    variation of 1-4 %, torque-sensor noise of 0.1-0.5 N*m and speed noise of 0.1-0.4 rpm;
+    a speed sensor that averages step speeds or, on half of them, tooth times."""
     if index == 0:
         return SimulationOptions()
     rng = np.random.default_rng(1000 + index)
@@ -86,6 +88,7 @@ def draw_vehicle(index: int) -> SimulationOptions:
         oscillating_mass_kg=float(rng.uniform(0.4, 0.6)),
     )
     return SimulationOptions(
+        speed_average="times" if rng.random() < 0.5 else "speeds",
         combustion_variation=float(rng.uniform(0.01, 0.04)),
         speed_noise_rpm=float(rng.uniform(0.1, 0.4)),
         torque_noise_nm=float(rng.uniform(0.1, 0.5)),
@@ -147,7 +150,7 @@ def main() -> None:
     parser.add_argument(
         "--engine-unknown",
         action="store_true",
-        help="the model keeps the reference engine instead of the vehicle's crank-train data",
+        help="the model keeps the reference engine and speed sensor instead of the vehicle's",
     )
     parser.add_argument(
         "--noise-seed", type=int, help="seed of the recording's noise (default: 100 + truth)"
@@ -164,7 +167,9 @@ def main() -> None:
         "simulated",
         from_simulation(simulate(truth, PLAN, vehicle, seed=noise_seed)),
         0.25,
-        EngineGeometry() if args.engine_unknown else vehicle.engine,
+        VehicleData()
+        if args.engine_unknown
+        else VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth"),
     )
     settings = SearchSettings(
         generations=args.generations,

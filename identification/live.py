@@ -38,7 +38,7 @@ from identification.recording import Recording, recording_from_series, request_t
 from identification.runs import ChirpRun, find_runs
 from identification.test_setup import MeasuredTest
 from identification.testdata import TestData
-from simulator.engine import EngineGeometry
+from simulator.vehicle_data import VehicleData
 
 logger = logging.getLogger(__name__)
 
@@ -113,14 +113,14 @@ class LiveSession:
         The vehicle interface of the session (for the mapped and missing roles).
     resolution_hz
         Welch resolution of the FRFs.
-    engine
-        The vehicle's crank-train data for the model (the reference engine by default).
+    vehicle
+        What the model knows of the vehicle besides its drivetrain (the reference's by default).
     """
 
     start: Mapping[str, Any]
     interface: VehicleInterface
     resolution_hz: float = DEFAULT_RESOLUTION_HZ
-    engine: EngineGeometry = field(default_factory=EngineGeometry)
+    vehicle: VehicleData = field(default_factory=VehicleData)
     samples: list[Mapping[str, Any]] = field(default_factory=list)
     frames: int = 0
     last_t: dict[str, float] = field(default_factory=dict)
@@ -277,7 +277,7 @@ class LiveSession:
         ends = [r.end_s for r in matched if r is not None]
         if ends:
             data = truncated(data, cut_time(data.test_torque, max(ends)))
-        test = MeasuredTest.from_data(self.name, data, self.resolution_hz, self.engine)
+        test = MeasuredTest.from_data(self.name, data, self.resolution_hz, self.vehicle)
         return identification_runs([test], self.amplitudes_nm, self.resolution_hz)
 
     def validation_due(self) -> bool:
@@ -290,7 +290,7 @@ class LiveSession:
     def validation_selection(self, data: TestData) -> RunSelection:
         """The validation runs, cut as :func:`identification.pipeline.validation_runs` cuts
         the whole log."""
-        test = MeasuredTest.from_data(self.name, data, self.resolution_hz, self.engine)
+        test = MeasuredTest.from_data(self.name, data, self.resolution_hz, self.vehicle)
         return validation_runs([test], self.amplitudes_nm, self.resolution_hz)
 
 

@@ -57,9 +57,9 @@ from identification.frf import (
 from identification.idle_loop import IdleLoop
 from identification.testdata import Series
 from simulator.controller import IdleController
-from simulator.engine import EngineGeometry
 from simulator.parameters import INDEX
 from simulator.simulate import BatchResult, SimulationOptions, replay_batch
+from simulator.vehicle_data import VehicleData
 
 SETTLE_S = 3.0
 """Idle before each run in the model's replay, s (the plan's settling time)."""
@@ -118,9 +118,10 @@ class ModelTest:
         the paper's setups, whose loop is then known).
     combustion_variation
         Relative cycle-to-cycle variation of each stroke's mean torque, as measured at idle.
-    engine
-        The vehicle's crank-train data (eqs. 4-5): their pulsation dithers the DMF's free play,
-        so the model's needs to be the vehicle's (:mod:`identification.vehicle_data`).
+    vehicle
+        The vehicle's crank-train data (eqs. 4-5: their pulsation dithers the DMF's free play,
+        so the model's needs to be the vehicle's) and speed sensor
+        (:mod:`simulator.vehicle_data`).
     realizations
         Runs per parameter set; with no combustion variation one run is enough.
     seed
@@ -140,7 +141,7 @@ class ModelTest:
     setpoint_rpm: float
     loop: IdleLoop | None = None
     combustion_variation: float = 0.0
-    engine: EngineGeometry = field(default_factory=EngineGeometry)
+    vehicle: VehicleData = field(default_factory=VehicleData)
     realizations: int = DEFAULT_REALIZATIONS
     seed: int = 0
     input: str = "torque"
@@ -158,7 +159,8 @@ class ModelTest:
         options = SimulationOptions.clean(
             combustion_variation=self.combustion_variation,
             controller=controller,
-            engine=self.engine,
+            engine=self.vehicle.engine,
+            speed_average=self.vehicle.speed_average,
         )
         object.__setattr__(self, "options", options)
         if self.loop is not None:  # each run from a stroke SETTLE_S before it

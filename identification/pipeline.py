@@ -47,7 +47,6 @@ from identification.start_values import start_thetas
 from identification.test_setup import MeasuredTest
 from identification.testdata import Series, TestData
 from simulator.parameters import DrivetrainParameters
-from simulator.vehicle_data import engine_table
 
 logger = logging.getLogger(__name__)
 
@@ -137,7 +136,7 @@ def _select(
         last = max(range(len(test.estimates)) if validation else runs)
         cut = cut_time(test.data.test_torque, test.estimates[last].run.end_s)
         kept = MeasuredTest.from_data(
-            test.name, truncated(test.data, cut), resolution_hz, test.engine
+            test.name, truncated(test.data, cut), resolution_hz, test.vehicle
         )
         at_levels = runs_at(kept, chosen)
         selected.append(kept)
@@ -287,7 +286,7 @@ class IdentificationReport:
             if self.fit
             else {},
             "idle_loop": {t.name: t.loop.as_dict() for t in self.fit.tests} if self.fit else {},
-            "vehicle_data": {"engine": engine_table(self.fit.tests[0].engine)} if self.fit else {},
+            "vehicle_data": self.fit.tests[0].vehicle.as_dict() if self.fit else {},
             "objective": result.objective,
             "parameter_sets": result.parameter_sets,
             "seconds": result.seconds,

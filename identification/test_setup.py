@@ -15,7 +15,7 @@ from identification.idle_loop import IdleLoop, idle_loop
 from identification.model_response import ModelTest
 from identification.runs import ChirpRun, find_runs
 from identification.testdata import Series, TestData
-from simulator.engine import EngineGeometry
+from simulator.vehicle_data import VehicleData
 
 MAX_WEIGHT_SAMPLES = 4.0
 """In the set-point's time mean a speed sample weighs at most this many median intervals."""
@@ -62,9 +62,9 @@ class MeasuredTest:
     loop: IdleLoop = dataclasses.field(repr=False)
     unusable: tuple[tuple[ChirpRun, str], ...] = ()
     """Chirp runs that cannot give an FRF (lost frames, too short), each with the reason."""
-    engine: EngineGeometry = dataclasses.field(default_factory=EngineGeometry)
-    """The vehicle's crank-train data the model engine uses (the reference engine unless the
-    vehicle's are given: :mod:`identification.vehicle_data`)."""
+    vehicle: VehicleData = dataclasses.field(default_factory=VehicleData)
+    """What the model knows of the vehicle besides its drivetrain: crank train and speed sensor
+    (the reference's unless given: :mod:`simulator.vehicle_data`)."""
 
     @classmethod
     def from_data(
@@ -72,12 +72,12 @@ class MeasuredTest:
         name: str,
         data: TestData,
         resolution_hz: float,
-        engine: EngineGeometry | None = None,
+        vehicle: VehicleData | None = None,
     ) -> MeasuredTest:
         """Find the runs, estimate their FRFs and the idle operating point.
 
-        ``engine`` is the vehicle's crank-train data for the model (the reference engine by
-        default).
+        ``vehicle`` is what the model knows of the vehicle besides its drivetrain (the
+        reference engine and eq. (9)'s speed sensor by default).
 
         A run that cannot give an FRF is kept in ``unusable`` with the reason:
         :func:`identification.identify.split_runs` leaves it out of the validation, or refuses
@@ -111,7 +111,7 @@ class MeasuredTest:
             loop.combustion_variation if separated else stroke_variation(torque),
             loop,
             tuple(unusable),
-            engine or EngineGeometry(),
+            vehicle or VehicleData(),
         )
 
     def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
@@ -123,7 +123,7 @@ class MeasuredTest:
             estimates=tuple(self.estimates[i] for i in indices),
             setpoint_rpm=self.setpoint_rpm,
             loop=self.loop,
-            engine=self.engine,
+            vehicle=self.vehicle,
             combustion_variation=self.combustion_variation,
             **extra,
         )

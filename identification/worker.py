@@ -374,7 +374,7 @@ class Worker:
                     self._fail(session, str(error))
                     return
                 session.live = LiveSession(
-                    event, interface, self.options.resolution_hz, self.options.vehicle.engine
+                    event, interface, self.options.resolution_hz, self.options.vehicle
                 )
                 self._progress(session, "acquiring")
                 continue

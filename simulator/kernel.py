@@ -192,7 +192,8 @@ def advance(
         Substeps per angle step (>= 1).
     sigmas
         Standard deviations: relative combustion variation of T_m, speed noise in rpm, torque
-        noise in N*m.
+        noise in N*m; then 1 for a speed sensor that averages times (a tooth timer: the
+        window's angle over its time) instead of the step speeds (eq. 9), if given.
     cv_noise
         Standard normal draws, one per working stroke started in this call.
     torque_noise
@@ -218,6 +219,7 @@ def advance(
     u_min, u_max, closed = controller[C_U_MIN], controller[C_U_MAX], controller[C_CLOSED] > 0.5
     delay, latch, e_tau = int(controller[C_DELAY]), int(controller[C_LATCH]), controller[C_E_TAU]
     sigma_cv, sigma_speed, sigma_torque = sigmas[0], sigmas[1], sigmas[2]
+    by_times = sigmas.shape[0] > 3 and sigmas[3] > 0.5
 
     w_set = controller[C_SETPOINT] / RPM_PER_RAD_S
     w_min, w_max = MIN_SPEED_RATIO * w_set, MAX_SPEED_RATIO * w_set
@@ -251,7 +253,11 @@ def advance(
             if n_speed >= max_speed:
                 status = STATUS_BUFFER_FULL
                 break
-            measured = window_sum / N_WIN * RPM_PER_RAD_S + sigma_speed * speed_noise[n_speed]
+            if by_times:  # a tooth timer: the window's angle over its time
+                mean_speed = N_WIN / np.sum(1.0 / window)
+            else:
+                mean_speed = window_sum / N_WIN
+            measured = mean_speed * RPM_PER_RAD_S + sigma_speed * speed_noise[n_speed]
             sample = min(step // STEPS_PER_SPEED_SAMPLE, n_reference) - 1
             elapsed = t - t_control
             if closed:

@@ -55,6 +55,10 @@ class SimulationOptions:
         Crank-train data.
     controller
         Idle-speed controller (and whether the loop is closed).
+    speed_average
+        How the speed sensor averages its half revolution: ``"speeds"``, the mean of the 30
+        step speeds (eq. 9, the product's ECU), or ``"times"``, the window's angle over its
+        time, as a tooth timer that adds up tooth times does.
     """
 
     pulsation: bool = True
@@ -63,12 +67,18 @@ class SimulationOptions:
     torque_noise_nm: float = 0.3
     engine: EngineGeometry = field(default_factory=EngineGeometry)
     controller: IdleController = field(default_factory=IdleController)
+    speed_average: str = "speeds"
 
     def __post_init__(self) -> None:
         for name in ("combustion_variation", "speed_noise_rpm", "torque_noise_nm"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f"simulation option {name} must be >= 0, got {value}")
+        if self.speed_average not in ("speeds", "times"):
+            raise ConfigError(
+                f"simulation option speed_average must be 'speeds' or 'times', got "
+                f"{self.speed_average!r}"
+            )
 
     @classmethod
     def clean(cls, **changes: object) -> SimulationOptions:
@@ -77,8 +87,16 @@ class SimulationOptions:
         return cls(**{**base, **changes})  # type: ignore[arg-type]
 
     def sigmas(self) -> np.ndarray:
-        """Noise levels in the order the kernel takes them."""
-        return np.array([self.combustion_variation, self.speed_noise_rpm, self.torque_noise_nm])
+        """Noise levels in the order the kernel takes them, then 1 where the speed sensor
+        averages times."""
+        return np.array(
+            [
+                self.combustion_variation,
+                self.speed_noise_rpm,
+                self.torque_noise_nm,
+                1.0 if self.speed_average == "times" else 0.0,
+            ]
+        )
 
     def tables(self) -> EngineTables:
         """Engine tables for these options."""

@@ -9,7 +9,7 @@ import pytest
 from dtid.cli import main
 from dtid.errors import ConfigError
 from simulator.engine import EngineGeometry
-from simulator.vehicle_data import engine_table, load_vehicle_data
+from simulator.vehicle_data import load_vehicle_data
 
 TRUTH_LIKE = """
 [drivetrain]  # another table (a truth, a prior): not read here
@@ -23,6 +23,9 @@ r = 0.045
 l = 0.14
 eps_c = 10.0
 firing_order = [1, 3, 4, 2]
+
+[sensors]
+speed_average = "times"
 """
 
 
@@ -38,9 +41,10 @@ def test_given_keys_replace_the_reference_engines(tmp_path: Path) -> None:
     assert (data.engine.bore_m, data.engine.crank_radius_m) == (0.082, 0.045)
     assert (data.engine.rod_length_m, data.engine.compression_ratio) == (0.14, 10.0)
     assert data.engine.isentropic_exponent == reference.isentropic_exponent  # not given
-    assert data.given == ("bore", "r", "l", "eps_c")
-    assert engine_table(data.engine)["p_l"] == reference.manifold_pressure_pa
-    assert "bore, r, l, eps_c from" in data.describe()
+    assert data.given == ("bore", "r", "l", "eps_c", "speed_average")
+    assert data.as_dict()["engine"]["p_l"] == reference.manifold_pressure_pa
+    assert data.as_dict()["sensors"] == {"speed_average": "times"}
+    assert "bore, r, l, eps_c, speed_average from" in data.describe()
 
 
 @pytest.mark.parametrize(
@@ -53,6 +57,7 @@ def test_given_keys_replace_the_reference_engines(tmp_path: Path) -> None:
         ("[engine]\nfiring_order = [1, 2, 2, 4]\n", "firing_order must list"),
         ("[engine]\nr = 0.2\nl = 0.15\n", "longer than the crank radius"),
         ("[drivetrain]\nJ1 = 0.1\n", "has no \\[engine\\] table"),
+        ("[sensors]\nspeed_average = 'mean'\n", "speeds.* or .*times"),
         ("[engine\n", "not valid TOML"),
     ],
 )

@@ -21,8 +21,9 @@ def add_vehicle_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--vehicle",
         type=Path,
-        help="vehicle file (TOML) whose [engine] table gives the crank-train data the model "
-        "engine needs (default: the reference engine; see docs/model-assumptions.md)",
+        help="vehicle file (TOML): [engine] gives the crank-train data the model engine needs, "
+        "[sensors] the speed sensor's arithmetic (default: the reference's; see "
+        "docs/model-assumptions.md)",
     )
 
 
@@ -70,10 +71,9 @@ def measured_tests(
 ) -> list[MeasuredTest]:
     """Load recordings and estimate their runs' FRFs for the identification commands."""
     interface = load_interface(dbc, signals)
-    engine = (vehicle or VehicleData()).engine
     return [
         MeasuredTest.from_data(
-            str(path), load_recording(path, interface).test_data(), DEFAULT_RESOLUTION_HZ, engine
+            str(path), load_recording(path, interface).test_data(), DEFAULT_RESOLUTION_HZ, vehicle
         )
         for path in recordings
     ]
