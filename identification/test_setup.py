@@ -38,8 +38,8 @@ class MeasuredTest:
     setpoint_rpm
         The idle set-point, rpm: the time-weighted mean of the filtered speed from the
         recording's first second to its end. An integrating idle controller makes that mean its
-        set-point, chirps included (0.01 rpm on a simulated 192 s test). Reported; the model
-        follows the recorded speed itself (:mod:`identification.idle_loop`).
+        set-point, chirps included (0.01 rpm on a simulated 192 s test). The recording's model
+        does not use it: it follows the recorded speed (:mod:`identification.idle_loop`).
     idle_torque_nm
         Mean measured torque at idle outside the chirps, N*m: the loss torque T_loss.
     combustion_variation
