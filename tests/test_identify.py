@@ -187,9 +187,7 @@ def test_the_combustion_variation_is_told_from_the_sensor_noise_or_given(
     estimated = run_identification([measured], reference, fixed=fix, profile_points=0)
     document = estimated.as_dict()  # from the data the identification sees (held out)
     assert document["combustion_variation"]["reference"] == pytest.approx(0.03, rel=0.1)
-    assert (
-        document["combustion_variation_without_sensor_noise"] == document["combustion_variation"]
-    )
+    assert document["combustion_variation_without_sensor_noise"] == document["combustion_variation"]
     result = estimated.identification  # scored again, the result gives its own eq. (17)
     assert estimated.fit_objective(result.parameters) == pytest.approx(result.objective, rel=1e-9)
     known = run_identification(
