@@ -1,6 +1,6 @@
 """Open the python-can bus of a test from ``[bus]``.
 
-The multicast guard (:func:`acquisition.netns.check_bus_allowed`) runs first, so a
+The multicast guard (:func:`dtid.acquisition.netns.check_bus_allowed`) runs first, so a
 ``udp_multicast`` bus is never opened outside a loopback-only network namespace. A bus that
 cannot be opened (no such interface, ``vcan0`` absent, no permission) is a
 :class:`dtid.errors.ConfigError` with the set-up hint.
@@ -25,8 +25,8 @@ import sys
 
 import can
 
-from acquisition.config import BusConfig
-from acquisition.netns import MULTICAST_INTERFACES, check_bus_allowed
+from dtid.acquisition.config import BusConfig
+from dtid.acquisition.netns import MULTICAST_INTERFACES, check_bus_allowed
 from dtid.errors import ConfigError
 
 logger = logging.getLogger(__name__)

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from dtid.errors import ConfigError
-from simulator.chirp import TestPlan
+from dtid.simulator.chirp import TestPlan
 
 
 def default_runtime_dir() -> Path:
@@ -73,7 +73,7 @@ class TestConfig:
     validation_nm
         Amplitude of the validation chirp A3 after them, N*m; 0 for none.
     f1_hz, f2_hz, duration_s, settle_s, pause_s, request_period_s
-        As :class:`simulator.chirp.TestPlan`.
+        As :class:`dtid.simulator.chirp.TestPlan`.
     """
 
     __test__ = False
@@ -88,7 +88,7 @@ class TestConfig:
     request_period_s: float = 0.01
 
     def plan(self) -> TestPlan:
-        """The chirps as a :class:`simulator.chirp.TestPlan` (validation chirp last)."""
+        """The chirps as a :class:`dtid.simulator.chirp.TestPlan` (validation chirp last)."""
         validation = (self.validation_nm,) if self.validation_nm else ()
         amplitudes = tuple(self.amplitudes_nm) + validation
         return TestPlan(
@@ -148,7 +148,7 @@ class PipelineConfig:
     Attributes
     ----------
     blocks
-        Daemon PUB of the event stream (:mod:`acquisition.stream`).
+        Daemon PUB of the event stream (:mod:`dtid.acquisition.stream`).
     replay
         Daemon REP that hands out kept events from a sequence number on.
     results

@@ -1,10 +1,10 @@
 """The acquisition daemon (``dtid acquire``): run one chirp test on the bus, record and stream it.
 
 The receive loop takes frames from the bus (``recv`` with a timeout of ``block_period_s``), runs
-each through :class:`acquisition.framepath.FramePath` (bus time, echo filter, raw log), and
+each through :class:`dtid.acquisition.framepath.FramePath` (bus time, echo filter, raw log), and
 publishes the pending block as a ``samples`` event when ``block_period_s`` has passed since its
 first frame or when no frame is waiting: one event per frame when the bus is quiet, batches under
-load. The daemon's own frames, sent by :class:`acquisition.sequence.RequestSender` from its
+load. The daemon's own frames, sent by :class:`dtid.acquisition.sequence.RequestSender` from its
 thread, join the same path. Between blocks the loop flushes the log, emits ``phase`` events at the
 plan's phase boundaries (bus time) and checks the safety envelope.
 
@@ -12,15 +12,15 @@ The test starts when the first engine speed frame is decoded (the daemon waits u
 ``wait_s`` wall seconds for the vehicle) and ends
 
 * completed, at the end of the plan: exit status :data:`EXIT_COMPLETED`;
-* aborted (:data:`acquisition.stream.ABORT_REASONS`): speed window, vehicle timeout, a foreign
+* aborted (:data:`dtid.acquisition.stream.ABORT_REASONS`): speed window, vehicle timeout, a foreign
   frame on the tool's IDs, SIGINT/SIGTERM, or any failure (bus error, exception): exit status
   :data:`EXIT_ABORTED`. An abort sends the abort heartbeat and
-  :data:`acquisition.sequence.ZERO_REQUESTS` zero requests (``TestEnable`` 0) before the daemon
+  :data:`dtid.acquisition.sequence.ZERO_REQUESTS` zero requests (``TestEnable`` 0) before the daemon
   stops; this runs in ``finally`` blocks, so no exit of the daemon's loop skips it (only
   ``kill -9`` does; then the vehicle's own request timeout applies).
 
 After the ``end`` event the log is closed, the session's health counts are reported as one line
-(``health: {json}``, the keys of :class:`acquisition.health.HealthCounts`), and the replay
+(``health: {json}``, the keys of :class:`dtid.acquisition.health.HealthCounts`), and the replay
 socket stays up for ``linger_s`` (wall) so a restarting worker can still catch up; a further
 signal cuts the linger short.
 """
@@ -43,17 +43,17 @@ from typing import Any
 
 import can
 
-from acquisition.bus import open_bus
-from acquisition.clock import BusClock
-from acquisition.config import AcquisitionConfig
-from acquisition.framepath import FramePath
-from acquisition.health import EchoFilter
-from acquisition.recorder import Recorder, new_session_directory
-from acquisition.safety import SafetyMonitor
-from acquisition.sequence import ZERO_REQUESTS, Phase, RequestSender, ToolFrames, phases
-from acquisition.server import EventServer
-from acquisition.stream import ABORT_REASONS
-from dbc.loader import load_interface
+from dtid.acquisition.bus import open_bus
+from dtid.acquisition.clock import BusClock
+from dtid.acquisition.config import AcquisitionConfig
+from dtid.acquisition.framepath import FramePath
+from dtid.acquisition.health import EchoFilter
+from dtid.acquisition.recorder import Recorder, new_session_directory
+from dtid.acquisition.safety import SafetyMonitor
+from dtid.acquisition.sequence import ZERO_REQUESTS, Phase, RequestSender, ToolFrames, phases
+from dtid.acquisition.server import EventServer
+from dtid.acquisition.stream import ABORT_REASONS
+from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -82,7 +82,7 @@ class DaemonResult:
     status
         ``completed`` or ``aborted``.
     reason
-        Key of :data:`acquisition.stream.ABORT_REASONS` for an abort, else None.
+        Key of :data:`dtid.acquisition.stream.ABORT_REASONS` for an abort, else None.
     session_dir
         The session's directory.
     log_path

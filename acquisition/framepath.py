@@ -2,10 +2,10 @@
 
 For each frame taken from the bus (:meth:`FramePath.take`):
 
-1. its receive timestamp is mapped to bus time (:class:`acquisition.clock.BusClock`);
+1. its receive timestamp is mapped to bus time (:class:`dtid.acquisition.clock.BusClock`);
 2. on the tool's own IDs, an echo of a frame the daemon sent is dropped, anything else there is
-   counted as ``foreign_tx`` and raises the alarm (:class:`acquisition.health.EchoFilter`);
-3. it is written to the raw log (:class:`acquisition.recorder.Recorder`);
+   counted as ``foreign_tx`` and raises the alarm (:class:`dtid.acquisition.health.EchoFilter`);
+3. it is written to the raw log (:class:`dtid.acquisition.recorder.Recorder`);
 4. it joins the pending block.
 
 The daemon's own frames join at step 3 with their sending time (:meth:`FramePath.take_sent`).
@@ -28,15 +28,15 @@ from typing import Any
 
 import can
 
-from acquisition.clock import BusClock
-from acquisition.health import EchoFilter, Health
-from acquisition.recorder import Recorder
-from acquisition.safety import SafetyMonitor
-from acquisition.server import EventServer
-from acquisition.stream import samples_roles
-from dbc.interface import RoleSeries, VehicleInterface
-from dbc.interface import logger as interface_logger
-from dbc.signal_map import RoleSpec
+from dtid.acquisition.clock import BusClock
+from dtid.acquisition.health import EchoFilter, Health
+from dtid.acquisition.recorder import Recorder
+from dtid.acquisition.safety import SafetyMonitor
+from dtid.acquisition.server import EventServer
+from dtid.acquisition.stream import samples_roles
+from dtid.dbc.interface import RoleSeries, VehicleInterface
+from dtid.dbc.interface import logger as interface_logger
+from dtid.dbc.signal_map import RoleSpec
 
 HEALTH_PERIOD_S = 0.5
 """Shortest wall time between two health events, s (the last counts always go out at the end)."""

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from dbc.interface import RoleSeries, VehicleInterface
+from dtid.dbc.interface import RoleSeries, VehicleInterface
 
 COUNTED_ROLES = ("speed", "mean_torque", "torque_request")
 """Crank-synchronous roles whose counters are checked."""

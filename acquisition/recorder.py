@@ -2,7 +2,8 @@
 
 Every frame the daemon receives and every frame it sends (``is_rx`` False) is written here before
 anything else reads it; the log alone is enough to redo every result offline. Formats by suffix:
-``.blf`` (default), ``.asc`` and ``.log`` (candump -L), as :mod:`acquisition.logfile` reads them.
+``.blf`` (default), ``.asc`` and ``.log`` (candump -L), as :mod:`dtid.acquisition.logfile` reads
+them.
 
 Crash safety: python-can's writers keep frames in memory (the BLF writer up to a 128 KiB
 container; the text writers in Python's file buffer) and complete the file only when stopped. The
@@ -16,8 +17,8 @@ when it closes the file, so a file never closed has no start time and its frames
 shifted by an unknown offset. The BLF writer here sets the start time when it opens the file (the
 daemon's start, truncated to the millisecond as BLF stores it) and rewrites the header at each
 checkpoint with the start time and the file size of a file still being written (the header size,
-python-can's own mark of an open file). :func:`acquisition.logfile.read_log` reads such a file up
-to the last complete frame, with a warning, however the writing was cut (also in the middle of a
+python-can's own mark of an open file). :func:`dtid.acquisition.logfile.read_log` reads such a file
+up to the last complete frame, with a warning, however the writing was cut (also in the middle of a
 container); the frames before the cut keep their absolute timestamps. On a clean close the header
 gets the true size, as python-can writes it.
 

@@ -11,17 +11,17 @@
   waiting on the bus, so its own pauses do not count as the vehicle's.
 
 The amplitude cap is enforced when the configuration is loaded
-(:class:`acquisition.config.AcquisitionConfig`); the other aborts (``foreign_tx``, ``signal``,
+(:class:`dtid.acquisition.config.AcquisitionConfig`); the other aborts (``foreign_tx``, ``signal``,
 ``error``) are decided by the daemon. Reasons are the keys of
-:data:`acquisition.stream.ABORT_REASONS`. What an abort does (zero request, end event) is the job
-of :class:`acquisition.sequence.RequestSender` and the daemon.
+:data:`dtid.acquisition.stream.ABORT_REASONS`. What an abort does (zero request, end event) is the
+job of :class:`dtid.acquisition.sequence.RequestSender` and the daemon.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from acquisition.config import SafetyConfig
+from dtid.acquisition.config import SafetyConfig
 
 
 class SafetyMonitor:

@@ -1,14 +1,15 @@
 """The test sequence on the bus: phases, the tool's frames, and the thread that sends them.
 
-The plan (:meth:`acquisition.config.TestConfig.plan`) runs in test time ``tau`` (s since the test
-started, bus time): settle at idle, chirp A1, pause, chirp A2, pause, validation chirp, pause. The
-tool sends exactly the frames a simulated test has (:mod:`simulator.vehicle_frames`):
+The plan (:meth:`dtid.acquisition.config.TestConfig.plan`) runs in test time ``tau`` (s since the
+test started, bus time): settle at idle, chirp A1, pause, chirp A2, pause, validation chirp, pause.
+The
+tool sends exactly the frames a simulated test has (:mod:`dtid.simulator.vehicle_frames`):
 
 * the test torque request at ``tau_k = k * request_period_s`` for every ``tau_k < plan.end_s``,
-  the chirp value held at ``tau_k`` (:func:`simulator.simulate.test_requests`), ``TestEnable`` 1
-  while a chirp runs, the alive counter +1 per frame modulo its width in the DBC, the checksum
+  the chirp value held at ``tau_k`` (:func:`dtid.simulator.simulate.test_requests`), ``TestEnable``
+  1 while a chirp runs, the alive counter +1 per frame modulo its width in the DBC, the checksum
   filled in by :meth:`dbc.VehicleInterface.encode`;
-* the heartbeat every :data:`dbc.tool_state.HEARTBEAT_PERIOD_S` with the tool state (settling,
+* the heartbeat every :data:`dtid.dbc.tool_state.HEARTBEAT_PERIOD_S` with the tool state (settling,
   chirp, done after the last chirp).
 
 :class:`RequestSender` sends them from its own thread against deadlines ``t_start + tau_k``
@@ -31,12 +32,12 @@ from dataclasses import dataclass
 import can
 import numpy as np
 
-from acquisition.clock import BusClock
-from acquisition.health import EchoFilter, counter_moduli
-from dbc.interface import VehicleInterface
-from dbc.tool_state import HEARTBEAT_PERIOD_S, TOOL_ABORT, TOOL_CHIRP, TOOL_DONE, TOOL_SETTLING
-from simulator.chirp import TestPlan
-from simulator.simulate import test_requests
+from dtid.acquisition.clock import BusClock
+from dtid.acquisition.health import EchoFilter, counter_moduli
+from dtid.dbc.interface import VehicleInterface
+from dtid.dbc.tool_state import HEARTBEAT_PERIOD_S, TOOL_ABORT, TOOL_CHIRP, TOOL_DONE, TOOL_SETTLING
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.simulate import test_requests
 
 logger = logging.getLogger(__name__)
 

@@ -1,4 +1,5 @@
-"""The daemon's side of the event stream (:mod:`acquisition.stream`): numbering, PUB and replay.
+"""The daemon's side of the event stream (:mod:`dtid.acquisition.stream`): numbering, PUB and
+replay.
 
 Every event of a session gets the next ``seq`` (0, 1, 2, ... without gaps) and the session's
 name, is published on the PUB socket (``[pipeline] blocks``) as ``[kind, JSON]`` and kept, as the
@@ -22,8 +23,8 @@ from typing import Any
 
 import zmq
 
-from acquisition.config import PipelineConfig
-from acquisition.stream import KINDS, encode_event
+from dtid.acquisition.config import PipelineConfig
+from dtid.acquisition.stream import KINDS, encode_event
 from dtid.errors import ConfigError
 
 logger = logging.getLogger(__name__)

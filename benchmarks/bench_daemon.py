@@ -5,8 +5,8 @@ Run from the repository root::
     PYTHONPATH=. python benchmarks/bench_daemon.py [--quick] [--bus virtual|udp]
 
 (a) Throughput, on one core (the process pinned to CPU 0): pre-built frames go through the
-    daemon's real per-frame path, :meth:`acquisition.framepath.FramePath.take` (bus time, echo
-    filter, BLF log) and, per block, :meth:`~acquisition.framepath.FramePath.publish_block`
+    daemon's real per-frame path, :meth:`dtid.acquisition.framepath.FramePath.take` (bus time, echo
+    filter, BLF log) and, per block, :meth:`~dtid.acquisition.framepath.FramePath.publish_block`
     (decode through the DBC, counter health, speed-window check, JSON ``samples`` event on a ZeroMQ
     PUB socket), with the log flushed (``fsync``) every ``flush_period_s`` as in the daemon. The
     bus's own ``recv`` is not part of it. Three mixes: the engine ECU's frames of the product DBC
@@ -14,7 +14,8 @@ Run from the repository root::
     of 200 frames (the daemon's batch at about 100,000 frames/s with a 2 ms block period) and,
     for the ECU mix, of 1 frame (a quiet bus: one event per frame). Compared with the highest
     frame rate of a 1 Mbit/s classical CAN bus, computed below without bit stuffing.
-(b) Latency: the whole daemon (:class:`acquisition.daemon.Daemon`) with a fake engine ECU sending
+(b) Latency: the whole daemon (:class:`dtid.acquisition.daemon.Daemon`) with a fake engine ECU
+sending
     speed, torque-request and mean-torque frames, and a ZeroMQ SUB subscriber in a separate
     process. Latency of a frame = the subscriber's ``time.time()`` when the samples event holding
     it arrives minus the frame's timestamp in that event (``time_factor`` 1: the receive time on
@@ -50,9 +51,9 @@ from typing import Any
 import can
 import numpy as np
 
-from acquisition import netns
-from acquisition.clock import BusClock
-from acquisition.config import (
+from dtid.acquisition import netns
+from dtid.acquisition.clock import BusClock
+from dtid.acquisition.config import (
     AcquisitionConfig,
     BusConfig,
     OutputConfig,
@@ -60,13 +61,13 @@ from acquisition.config import (
     SafetyConfig,
     TestConfig,
 )
-from acquisition.daemon import Daemon
-from acquisition.framepath import FramePath
-from acquisition.health import EchoFilter
-from acquisition.recorder import Recorder
-from acquisition.safety import SafetyMonitor
-from acquisition.server import EventServer
-from dbc.loader import load_interface
+from dtid.acquisition.daemon import Daemon
+from dtid.acquisition.framepath import FramePath
+from dtid.acquisition.health import EchoFilter
+from dtid.acquisition.recorder import Recorder
+from dtid.acquisition.safety import SafetyMonitor
+from dtid.acquisition.server import EventServer
+from dtid.dbc.loader import load_interface
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results"
@@ -198,8 +199,8 @@ def send_ecu_frames(bus: can.BusABC, rate: float, stop: threading.Event) -> None
 UDP_ECU = """
 import sys, threading
 sys.path.insert(0, {repo!r})
-from acquisition.bus import open_bus
-from acquisition.config import BusConfig
+from dtid.acquisition.bus import open_bus
+from dtid.acquisition.config import BusConfig
 from benchmarks.bench_daemon import send_ecu_frames
 bus = open_bus(BusConfig(interface="udp_multicast", channel={group!r}))
 print("ready", flush=True)

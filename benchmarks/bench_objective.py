@@ -4,8 +4,8 @@ On the reference vehicle's default simulated recording (60 s chirps, 5 and 10 N*
 each replayed from 3 s before it), times the objective as the search's stages call it: one
 parameter set at a time (Nelder-Mead, the profiles' polish) and a population at once
 (differential evolution), on 1, 2 and 4 model realizations. Each figure is split into the
-simulator (:func:`simulator.simulate.replay_batch`) and the rest (cross-spectra, |G_DRV|, NRMSE).
-Not a test: nothing is asserted.
+simulator (:func:`dtid.simulator.simulate.replay_batch`) and the rest (cross-spectra, |G_DRV|,
+NRMSE). Not a test: nothing is asserted.
 
     PYTHONPATH=. python benchmarks/bench_objective.py [--repeats 40]
 """
@@ -17,14 +17,18 @@ import time
 
 import numpy as np
 
-from identification import model_response
-from identification.frf import DEFAULT_RESOLUTION_HZ
-from identification.identify import Objective, split_runs
-from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.test_setup import MeasuredTest
-from identification.testdata import from_simulation
-from simulator.parameters import reference_parameters
-from simulator.simulate import simulate
+from dtid.identification import model_response
+from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import Objective, split_runs
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.simulator.parameters import reference_parameters
+from dtid.simulator.simulate import simulate
 
 POPULATION = 120
 """Parameter sets per batched call: the search's differential evolution population."""

@@ -9,13 +9,15 @@ Measures (wall time with ``time.perf_counter``, best of N repeats for the kernel
 for solve_ivp, whose seconds make timer noise irrelevant; numba compilation excluded and
 reported separately, measured in a fresh interpreter with an empty numba cache):
 
-(a) :func:`simulator.simulate.simulate` for the reference vehicle and the default test plan
+(a) :func:`dtid.simulator.simulate.simulate` for the reference vehicle and the default test plan
     (192 s simulated, engine pulsation, combustion variation and sensor noise on), one thread;
-(b) :func:`simulator.simulate.simulate_batch` with 64 parameter sets (the identification's use),
+(b) :func:`dtid.simulator.simulate.simulate_batch` with 64 parameter sets (the identification's
+use),
     on one thread and on all cores;
 (c) :func:`benchmarks.solve_ivp_plant.simulate_solve_ivp` (RK45, and LSODA) on a 10 N*m chirp
     with clean options, against the kernel on the same chirp, and the agreement of the two:
-    filtered-speed difference and |G_DRV| of :func:`identification.frf.estimate_frf`.
+    filtered-speed difference and |G_DRV| of
+    :func:`dtid.identification.frf.closed_loop.estimate_frf`.
 
 Prints a markdown table for the README and writes the figures to
 ``benchmarks/results/simulator.json``. A benchmark, not a test: nothing is asserted.
@@ -41,16 +43,16 @@ import numpy as np
 import scipy
 from scipy.interpolate import CubicSpline
 
-import simulator.simulate as simulate_module
+import dtid.simulator.simulate as simulate_module
 from benchmarks.solve_ivp_plant import IvpSettings, simulate_solve_ivp
 from dtid.errors import AnalysisError
-from identification.frf import FrfEstimate, estimate_frf
-from identification.runs import find_runs
-from identification.testdata import Series, from_simulation
-from simulator.angle_grid import STEPS_PER_SPEED_SAMPLE
-from simulator.chirp import TestPlan
-from simulator.parameters import INDEX, reference_parameters
-from simulator.simulate import SimulationOptions, SimulationResult, simulate, simulate_batch
+from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.samples.testdata import Series, from_simulation
+from dtid.simulator.angle_grid import STEPS_PER_SPEED_SAMPLE
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import INDEX, reference_parameters
+from dtid.simulator.simulate import SimulationOptions, SimulationResult, simulate, simulate_batch
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "benchmarks" / "results" / "simulator.json"
@@ -72,9 +74,9 @@ COMPILE_PROBE = """
 import json, time
 t0 = time.perf_counter()
 import numpy as np
-from simulator.chirp import TestPlan
-from simulator.parameters import reference_parameters
-from simulator.simulate import simulate, simulate_batch
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import reference_parameters
+from dtid.simulator.simulate import simulate, simulate_batch
 t1 = time.perf_counter()
 p = reference_parameters()
 plan = TestPlan(amplitudes_nm=(5.0,), duration_s=1.0, settle_s=0.5, pause_s=0.5)

@@ -26,17 +26,17 @@ import time
 
 import numpy as np
 
-from identification.identify import Objective, SearchSettings, refine
-from identification.parameterization import THETA_NAMES, theta_from_parameters
-from identification.pipeline import IdentificationReport, run_identification
-from identification.test_setup import MeasuredTest
-from identification.testdata import from_simulation
-from simulator.chirp import TestPlan
-from simulator.controller import IdleController
-from simulator.engine import EngineGeometry
-from simulator.parameters import DrivetrainParameters, reference_parameters
-from simulator.simulate import SimulationOptions, simulate
-from simulator.vehicle_data import VehicleData
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import IdentificationReport, run_identification
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import Objective, SearchSettings, refine
+from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.controller import IdleController
+from dtid.simulator.engine import EngineGeometry
+from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.vehicle_data import VehicleData
 
 TRUTH_SPREAD = 0.4
 """Random truths lie within +-40 % of the reference."""

@@ -1,18 +1,19 @@
 """How precisely a chirp test can pin each parameter: the scatter of the linearised estimator.
 
 Simulates one truth's test with several noise seeds (combustion variation and sensor noise) and,
-at the truth, the Jacobian of eq. (17)'s residuals (:func:`identification.sensitivity.jacobian`).
-Near its minimum eq. (17) is a weighted least-squares fit of the dB residuals, each run's bins
-weighted by 1 / (spread^2 * NRMSE), so the estimate's error to first order is
-A r with A = (J^T W J)^-1 J^T W and r the recording's residual at the truth. Applying A to each
-seed's residual gives, without a single search, the bias and scatter of the linearised fit. The
-searches follow it roughly, not exactly (``identification_trial.py --noise-seed``: on the
-reference's eight recordings c12 scattered 1.9 % for 1.9 % predicted, d12 11 % for 12 %, the gear
-play 2.8 % for 4.9 %; the friction, whose profile is far from quadratic, comes out within 8 % on
-six and off by half or more on two). It also gives the scatter of the unweighted least-squares fit
-that the profile likelihood assumes, against the standard deviation its statistic implies
-(:func:`identification.profile.noise_scale`), which says whether the profile intervals are
-calibrated. Not a test: nothing is asserted.
+at the truth, the Jacobian of eq. (17)'s residuals
+(:func:`dtid.identification.uncertainty.sensitivity.jacobian`). Near its minimum eq. (17) is a
+weighted least-squares fit of the dB residuals, each run's bins weighted by 1 / (spread^2 * NRMSE),
+so the estimate's error to first order is A r with A = (J^T W J)^-1 J^T W and r the recording's
+residual at the truth. Applying A to each seed's residual gives, without a single search, the bias
+and scatter of the linearised fit. The searches follow it roughly, not exactly
+(``identification_trial.py --noise-seed``: on the reference's eight recordings c12 scattered 1.9 %
+for 1.9 % predicted, d12 11 % for 12 %, the gear play 2.8 % for 4.9 %; the friction, whose profile
+is far from quadratic, comes out within 8 % on six and off by half or more on two). It also gives
+the scatter of the unweighted least-squares fit that the profile likelihood assumes, against the
+standard deviation its statistic implies
+(:func:`dtid.identification.uncertainty.profile.noise_scale`), which says whether the profile
+intervals are calibrated. Not a test: nothing is asserted.
 
     PYTHONPATH=. python benchmarks/information_bound.py --truth 1 --seeds 12
     PYTHONPATH=. python benchmarks/information_bound.py --truth 1 --identify 2 5 10  # all three
@@ -30,20 +31,20 @@ import itertools
 import numpy as np
 
 from benchmarks.identification_trial import draw_truth
-from identification.identify import Objective
-from identification.parameterization import (
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import identification_runs
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import Objective
+from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
 )
-from identification.pipeline import identification_runs
-from identification.profile import correlation_length, local_variance
-from identification.sensitivity import jacobian
-from identification.test_setup import MeasuredTest
-from identification.testdata import from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import reference_parameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.identification.uncertainty.profile import correlation_length, local_variance
+from dtid.identification.uncertainty.sensitivity import jacobian
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import reference_parameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 RESOLUTION_HZ = 0.25
 

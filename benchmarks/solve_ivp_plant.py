@@ -1,4 +1,5 @@
-"""The closed loop of :mod:`simulator.kernel`, integrated in the time domain with ``solve_ivp``.
+"""The closed loop of :mod:`dtid.simulator.kernel`, integrated in the time domain with
+``solve_ivp``.
 
 This is the yardstick of the simulator benchmark: the same equations, sensors, controller and
 test torque as the angle-discrete numba kernel, written the way a competent engineer would
@@ -24,14 +25,14 @@ Design choices
   stroke's dense output by a vectorised Newton iteration on phi(t) - phi_j (phi is strictly
   increasing with slope omega1), so every sensor sample, and the controller's time stamp, is at
   the grid angle to round-off, without stopping the integrator.
-* Engine torque. The tables of :func:`simulator.engine.engine_tables` are the engine torque on
+* Engine torque. The tables of :func:`dtid.simulator.engine.engine_tables` are the engine torque on
   the 120-point angle grid of a working cycle. They are interpolated linearly at the continuous
   crank angle with ``np.interp``; as the held torques are constant over a stroke, the sum
   compression + sum_i T_m,i * shape_i is formed once per stroke and the table is rotated to the
   stroke's start, which takes the periodic wrap out of the right-hand side. (The kernel holds
   the mean of each table over its angle step instead; ``IvpSettings(hold_table=True)`` reads
   the tables that way, to tell that difference apart from the integrators'.)
-* DMF. Spring with free play and damper through :func:`simulator.couplings.dmf_smooth_torque`;
+* DMF. Spring with free play and damper through :func:`dtid.simulator.couplings.dmf_smooth_torque`;
   Coulomb friction as ``Tc12 * tanh(rate12 / w_f)`` because an ODE solver cannot apply the
   kernel's Moreau friction impulse (stick/slip needs a set-valued sign). The width w_f trades
   fidelity for stiffness; see :data:`FRICTION_WIDTH_RAD_S` for the choice of 1e-3 rad/s.
@@ -39,7 +40,7 @@ Design choices
   + c23/d23 (delta23 - b), so the coupling transmits nothing; on a stop b is held while the
   torque pushes into it. The coupling torque c23 (delta23 - b) + d23 (d(delta23)/dt - db/dt) is
   then zero in the gap and the spring-damper torque in contact, as in
-  :func:`simulator.couplings.backlash_torque`. RK45 takes the switch between gap and contact as
+  :func:`dtid.simulator.couplings.backlash_torque`. RK45 takes the switch between gap and contact as
   it is, through its error control (no event and no solver restart per contact).
   LSODA cannot: its Newton iteration chatters across the switch and the step collapses to
   nanoseconds at the first contact, so for it db/dt fades to zero over the last 1e-7 rad before
@@ -59,7 +60,7 @@ import numpy as np
 from scipy.integrate import OdeSolution, solve_ivp
 
 from dtid.errors import AnalysisError
-from simulator.angle_grid import (
+from dtid.simulator.angle_grid import (
     N_CYL,
     N_WIN,
     RPM_PER_RAD_S,
@@ -68,12 +69,17 @@ from simulator.angle_grid import (
     STEPS_PER_SPEED_SAMPLE,
     STEPS_PER_STROKE,
 )
-from simulator.chirp import TestPlan
-from simulator.couplings import dead_zone, dmf_smooth_torque
-from simulator.engine import engine_tables
-from simulator.kernel import MAX_SPEED_RATIO, MIN_SPEED_RATIO
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, SimulationResult, output_capacity, test_requests
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.couplings import dead_zone, dmf_smooth_torque
+from dtid.simulator.engine import engine_tables
+from dtid.simulator.kernel import MAX_SPEED_RATIO, MIN_SPEED_RATIO
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import (
+    SimulationOptions,
+    SimulationResult,
+    output_capacity,
+    test_requests,
+)
 
 FRICTION_WIDTH_RAD_S = 1e-3
 """Width w_f of the regularised Coulomb friction Tc12 * tanh(rate12 / w_f), rad/s.
@@ -289,7 +295,7 @@ def simulate_solve_ivp(
 ) -> tuple[SimulationResult, SolverStats]:
     """Simulate one chirp test of the closed loop with ``scipy.integrate.solve_ivp``.
 
-    Same inputs, random draws and outputs as :func:`simulator.simulate.simulate`.
+    Same inputs, random draws and outputs as :func:`dtid.simulator.simulate.simulate`.
 
     Parameters
     ----------
@@ -300,14 +306,14 @@ def simulate_solve_ivp(
     options
         Engine, controller, noise.
     seed
-        Seed of the noise draws (the same draws as :func:`simulator.simulate.simulate`).
+        Seed of the noise draws (the same draws as :func:`dtid.simulator.simulate.simulate`).
     settings
         Method, tolerances and regularisations; RK45 at rtol 1e-6, atol 1e-9 by default.
 
     Returns
     -------
     SimulationResult
-        As :func:`simulator.simulate.simulate` returns it.
+        As :func:`dtid.simulator.simulate.simulate` returns it.
     SolverStats
         Segments, steps, right-hand-side evaluations and wall time.
 

@@ -2,18 +2,18 @@
 
 Typical use::
 
-    from dbc import DEFAULT_DBC, DEFAULT_SIGNAL_MAP, load_database, load_signal_map
+    from dtid.dbc import DEFAULT_DBC, DEFAULT_SIGNAL_MAP, load_database, load_signal_map
 
     interface = load_signal_map(DEFAULT_SIGNAL_MAP).bind(load_database(DEFAULT_DBC), DEFAULT_DBC)
     series = interface.decode(frames)   # {"speed": RoleSeries, ...}
 """
 
-from dbc.checksum import apply_checksum, compute_checksum, verify_checksum
-from dbc.database import load_database
-from dbc.interface import RoleSeries, VehicleInterface
-from dbc.resources import DEFAULT_DBC, DEFAULT_SIGNAL_MAP
-from dbc.roles import CANONICAL_UNITS, REQUIRED_ROLES, ROLES
-from dbc.signal_map import RoleSpec, SignalMap, load_signal_map
+from dtid.dbc.checksum import apply_checksum, compute_checksum, verify_checksum
+from dtid.dbc.database import load_database
+from dtid.dbc.interface import RoleSeries, VehicleInterface
+from dtid.dbc.resources import DEFAULT_DBC, DEFAULT_SIGNAL_MAP
+from dtid.dbc.roles import CANONICAL_UNITS, REQUIRED_ROLES, ROLES
+from dtid.dbc.signal_map import RoleSpec, SignalMap, load_signal_map
 
 __all__ = [
     "CANONICAL_UNITS",

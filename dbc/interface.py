@@ -14,14 +14,14 @@ import numpy as np
 from cantools.database import DecodeError, EncodeError
 from cantools.database.can import Database, Message, Signal
 
-from dbc.checksum import CHECKSUM_BYTE, PAYLOAD_LENGTH, apply_checksum
-from dbc.database import load_database
-from dbc.resources import DEFAULT_DBC
-from dbc.roles import REQUIRED_ROLES
+from dtid.dbc.checksum import CHECKSUM_BYTE, PAYLOAD_LENGTH, apply_checksum
+from dtid.dbc.database import load_database
+from dtid.dbc.resources import DEFAULT_DBC
+from dtid.dbc.roles import REQUIRED_ROLES
 from dtid.errors import ConfigError, DbcError
 
 if TYPE_CHECKING:
-    from dbc.signal_map import RoleSpec, SignalMap
+    from dtid.dbc.signal_map import RoleSpec, SignalMap
 
 logger = logging.getLogger(__name__)
 
@@ -195,7 +195,7 @@ class VehicleInterface:
 
     def checks_checksum(self, role: str) -> bool:
         """True when the role's frames carry the product's checksum (which
-        :func:`dbc.checksum.verify_checksum` checks on a received payload)."""
+        :func:`dtid.dbc.checksum.verify_checksum` checks on a received payload)."""
         bound = self._roles.get(role)
         return bound is not None and bound.product_checksum
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from dbc.database import load_database
-from dbc.interface import VehicleInterface
-from dbc.resources import DEFAULT_DBC, DEFAULT_SIGNAL_MAP
-from dbc.signal_map import load_signal_map
+from dtid.dbc.database import load_database
+from dtid.dbc.interface import VehicleInterface
+from dtid.dbc.resources import DEFAULT_DBC, DEFAULT_SIGNAL_MAP
+from dtid.dbc.signal_map import load_signal_map
 from dtid.errors import DbcError
 
 

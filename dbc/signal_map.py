@@ -25,8 +25,8 @@ role                canonical    optional keys
 and ``scale`` a factor applied after decoding (for a torque in % of a 450 N*m reference,
 ``scale = 4.5``): ``canonical = unit_convert(decoded * scale, unit)``. ``timeout_s`` is how long
 the engine ECU keeps applying the last test-torque request when no valid one follows, s
-(:data:`dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` when not given): after it the ECU applies zero, and
-the analysis reads a recording's requests so (:mod:`identification.recording`).
+(:data:`dtid.dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` when not given): after it the ECU applies zero,
+and the analysis reads a recording's requests so (:mod:`dtid.identification.samples.recording`).
 
 ``speed``, ``mean_torque`` and ``test_torque`` are needed by the analysis commands; a map may lack
 them (``inspect`` reports what is missing), and :meth:`SignalMap.require` raises a clear error
@@ -45,8 +45,8 @@ from typing import Any
 
 from cantools.database.can import Database
 
-from dbc.interface import VehicleInterface
-from dbc.roles import (
+from dtid.dbc.interface import VehicleInterface
+from dtid.dbc.roles import (
     CANONICAL_UNITS,
     DEFAULT_REQUEST_TIMEOUT_S,
     EXTRA_SIGNAL_KEYS,
@@ -86,7 +86,7 @@ class RoleSpec:
         Names of further signals of the same message, where the map names them.
     timeout_s : float
         For the test torque: bus time after the last valid request from which the ECU applies
-        zero, s; :data:`dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` unless the map gives it.
+        zero, s; :data:`dtid.dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` unless the map gives it.
     """
 
     role: str
@@ -165,7 +165,7 @@ class SignalMap:
         Parameters
         ----------
         database : cantools.database.can.Database
-            The database, e.g. from :func:`dbc.load_database`.
+            The database, e.g. from :func:`dtid.dbc.load_database`.
         dbc_source : str or os.PathLike, optional
             The database's file, named in error messages.
 

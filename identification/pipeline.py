@@ -20,9 +20,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.errors import ConfigError
-from identification.analytic import inseparable
-from identification.frf import DEFAULT_RESOLUTION_HZ, FrfEstimate
-from identification.identify import (
+from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate
+from dtid.identification.frf.runs import ZERO_FRACTION
+from dtid.identification.model.response import model_drv_db
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import Series, TestData
+from dtid.identification.search.analytic import inseparable
+from dtid.identification.search.identify import (
     Identification,
     Objective,
     Progress,
@@ -33,20 +37,16 @@ from identification.identify import (
     runs_at,
     split_runs,
 )
-from identification.model_response import model_drv_db
-from identification.objective import nrmse
-from identification.parameterization import (
+from dtid.identification.search.objective import nrmse
+from dtid.identification.search.parameterization import (
     PRIOR_SPAN,
     THETA_UNITS,
     Parameterization,
     passenger_car_bounds,
 )
-from identification.profile import Profile, profile, with_structure
-from identification.runs import ZERO_FRACTION
-from identification.start_values import start_thetas
-from identification.test_setup import MeasuredTest
-from identification.testdata import Series, TestData
-from simulator.parameters import DrivetrainParameters
+from dtid.identification.search.start_values import start_thetas
+from dtid.identification.uncertainty.profile import Profile, profile, with_structure
+from dtid.simulator.parameters import DrivetrainParameters
 
 logger = logging.getLogger(__name__)
 
@@ -54,12 +54,12 @@ OPERATING_POINT = ("K", "T_loss", "combustion_variation")
 """What is measured of the operating point before the drivetrain fit, each fixable too: K
 (eq. 24), T_loss (the idle torque, N*m) and the relative cycle-to-cycle variation of each
 stroke's mean torque that the model engine repeats
-(:attr:`identification.test_setup.MeasuredTest.combustion_variation`). Measured at idle, the
-variation counts the torque sensor's noise in; where the vehicle's indicating system gives the
+(:attr:`dtid.identification.model.test_setup.MeasuredTest.combustion_variation`). Measured at idle,
+the variation counts the torque sensor's noise in; where the vehicle's indicating system gives the
 COV of IMEP, that is the better value."""
 HOLD_OUT_S = 2.0
 """Data kept after the last run a test analyses, s: one second of idle past the idle margin
-(:data:`identification.test_setup.IDLE_MARGIN_S`), and less than the test's 3 s pause."""
+(:data:`dtid.identification.model.test_setup.IDLE_MARGIN_S`), and less than the test's 3 s pause."""
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,8 @@ def identification_runs(
     identify_amplitudes: Sequence[float] | None = None,
     resolution_hz: float = DEFAULT_RESOLUTION_HZ,
 ) -> RunSelection:
-    """The identification runs (see :func:`identification.identify.split_runs`), held out."""
+    """The identification runs (see :func:`dtid.identification.search.identify.split_runs`), held
+    out."""
     return _select(tests, identify_amplitudes, False, resolution_hz)
 
 
@@ -184,7 +185,7 @@ class IdentificationReport:
         engine repeated in them.
     inseparable
         The free parameters the identification's excitation cannot identify, whatever their
-        profiles show, with the reason (:func:`identification.analytic.inseparable`: a
+        profiles show, with the reason (:func:`dtid.identification.search.analytic.inseparable`: a
         stiffness and its free play from one amplitude); their verdict is ``no``, with or
         without profiles.
     parameterization
@@ -352,7 +353,7 @@ def run_identification(
     span
         Relative half-width of the bounds around the prior where ``bounds`` names none (1 is
         the paper's +-100 %); None: +-100 % widened to a passenger car's ranges
-        (:func:`identification.parameterization.passenger_car_bounds`).
+        (:func:`dtid.identification.search.parameterization.passenger_car_bounds`).
     """
     selection = identification_runs(tests, identify_amplitudes, resolution_hz)
     report = identify_runs(

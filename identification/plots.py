@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from dtid.errors import RecordingError
-from identification.frf import FrfEstimate
+from dtid.identification.frf.closed_loop import FrfEstimate
 
 COHERENCE_FLOOR = 0.7
 """Bins below this coherence are drawn faint: noise makes up a third or more of the response."""
@@ -139,7 +139,7 @@ def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str =
     Parameters
     ----------
     profiles
-        :class:`identification.profile.Profile` by parameter name.
+        :class:`dtid.identification.uncertainty.profile.Profile` by parameter name.
     path
         Output file; the format follows its suffix.
     title

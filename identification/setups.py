@@ -19,23 +19,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from identification.analytic import inseparable
-from identification.frf import estimate_frf
-from identification.identify import Objective, amplitude_levels
-from identification.model_response import ModelTest
-from identification.parameterization import (
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.model.response import ModelTest
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.analytic import inseparable
+from dtid.identification.search.identify import Objective, amplitude_levels
+from dtid.identification.search.parameterization import (
     MIN_INERTIA_FRACTION,
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
 )
-from identification.profile import Profile, profile, with_structure
-from identification.runs import find_runs
-from identification.testdata import from_simulation
-from simulator.chirp import TestPlan
-from simulator.controller import IdleController
-from simulator.parameters import DrivetrainParameters, reference_parameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.identification.uncertainty.profile import Profile, profile, with_structure
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.controller import IdleController
+from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 DETACHED_J3_FRACTION = 0.002
 """J3 of the two-mass setups as a fraction of the total inertia (it hangs free: c23 = 0)."""

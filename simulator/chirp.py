@@ -98,9 +98,7 @@ class TestPlan:
             if not (math.isfinite(amplitude) and amplitude > 0):
                 raise ConfigError(f"test plan: chirp amplitudes must be > 0 N*m, got {amplitude}")
         if self.f2_hz <= self.f1_hz:
-            raise ConfigError(
-                f"test plan: f2 ({self.f2_hz} Hz) must be above f1 ({self.f1_hz} Hz)"
-            )
+            raise ConfigError(f"test plan: f2 ({self.f2_hz} Hz) must be above f1 ({self.f1_hz} Hz)")
         if self.f2_hz >= 0.5 / self.request_period_s:
             raise ConfigError(
                 f"test plan: f2 = {self.f2_hz} Hz is not below the Nyquist frequency of a "

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.errors import ConfigError
-from simulator.kernel import N_RING
+from dtid.simulator.kernel import N_RING
 
 
 @dataclass(frozen=True)
@@ -22,7 +22,8 @@ class IdleController:
     band; the integral corner sits at 0.2 Hz (ki = kp * 2 pi * 0.2 Hz). Vehicles differ: other
     gains, a derivative term, an output that reaches the request some samples later, a stroke
     that latches an older or newer request. The identification assumes none of this of a
-    recording (:mod:`identification.idle_loop`); the simulator draws it to make test vehicles.
+    recording (:mod:`dtid.identification.model.idle_loop`); the simulator draws it to make test
+    vehicles.
 
     Attributes
     ----------

@@ -116,8 +116,13 @@ def backlash_torque(
 
 @numba.njit(cache=True, inline="always")
 def backlash_update(
-    delta23_new: float, delta23_old: float, backlash: float, c23: float, d23: float,
-    half_play23: float, h: float,
+    delta23_new: float,
+    delta23_old: float,
+    backlash: float,
+    c23: float,
+    d23: float,
+    half_play23: float,
+    h: float,
 ) -> float:
     """Advance the backlash state over a step in which delta23 went from old to new.
 

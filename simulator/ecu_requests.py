@@ -4,9 +4,9 @@ envelope).
 The ECU applies a request only while the stream of requests is healthy: a frame whose checksum
 is wrong, or whose alive counter does not advance by exactly one from the last accepted frame, is
 dropped; and when no valid frame has arrived for the signal map's ``timeout_s`` of bus time
-(:data:`dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` unless the map gives it), or the last valid frame has
-TestEnable = 0, the test torque is zero. After a timeout the next valid frame is accepted whatever
-its counter (the stream restarted).
+(:data:`dtid.dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` unless the map gives it), or the last valid frame
+has TestEnable = 0, the test torque is zero. After a timeout the next valid frame is accepted
+whatever its counter (the stream restarted).
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import can
 
-from dbc.checksum import verify_checksum
-from dbc.interface import VehicleInterface
+from dtid.dbc.checksum import verify_checksum
+from dtid.dbc.interface import VehicleInterface
 
 COUNTER_MODULO = 16
 """The alive counter's wrap (4 bits in the product DBC)."""

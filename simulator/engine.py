@@ -1,9 +1,9 @@
 """Engine torque of a four-cylinder four-stroke engine, paper eqs. (1)-(5), as angle tables.
 
 Every term of eq. (1) is periodic in crank angle, so it is tabulated once per parameter set on the
-angle grid of :mod:`simulator.angle_grid` (120 steps per working cycle of 4*pi) and costs a lookup
-per integration step. Entry k holds the term's mean over step k (the trapezoid of its values at
-the step's two ends), which the integrator applies over the whole step; reading the value at the
+angle grid of :mod:`dtid.simulator.angle_grid` (120 steps per working cycle of 4*pi) and costs a
+lookup per integration step. Entry k holds the term's mean over step k (the trapezoid of its values
+at the step's two ends), which the integrator applies over the whole step; reading the value at the
 step's start instead biases |G_DRV| by 0.15 dB against a continuous-time integration (measured in
 ``benchmarks/bench_simulator.py``):
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simulator.angle_grid import N_CYL, STEP_RAD, STEPS_PER_CYCLE, STEPS_PER_STROKE
+from dtid.simulator.angle_grid import N_CYL, STEP_RAD, STEPS_PER_CYCLE, STEPS_PER_STROKE
 
 COMBUSTION_ORDERS = np.arange(0.5, 4.01, 0.5)
 """Orders k of the Fourier series of eq. (2)."""
@@ -85,7 +85,7 @@ class EngineTables:
 
         Each cylinder's shape is 1 over its working stroke (pi after its firing TDC) and 0
         elsewhere, so the engine torque is the current stroke's T_m, held for the stroke: the
-        continuous hold of :func:`identification.sensor_response.stroke_hold_gain`.
+        continuous hold of :func:`dtid.identification.model.sensor_response.stroke_hold_gain`.
         """
         stroke = np.where(np.arange(STEPS_PER_CYCLE) < STEPS_PER_STROKE, 1.0, 0.0)
         zero = np.zeros(STEPS_PER_CYCLE)
@@ -152,9 +152,7 @@ def inertia_coefficient(phi: np.ndarray, geometry: EngineGeometry) -> np.ndarray
 
 
 @functools.cache
-def engine_tables(
-    geometry: EngineGeometry | None = None, step_mean: bool = True
-) -> EngineTables:
+def engine_tables(geometry: EngineGeometry | None = None, step_mean: bool = True) -> EngineTables:
     """Tabulate the engine torque terms of eq. (1) on the angle grid.
 
     Computed once per geometry and shared by every simulation (the identification replays

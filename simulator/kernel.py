@@ -5,7 +5,7 @@ The independent variable is the crank angle phi_1, advanced by exactly ``STEP_RA
 dampers, engine torque) act explicitly on the velocities (symplectic Euler), Coulomb friction acts
 as an impulse (Moreau), then the deflections and the backlash state advance with the new
 velocities. A step may be split into ``n_sub`` equal substeps when a parameter set is stiff for
-the angle step (see :func:`simulator.simulate.substeps`); the engine torque is held over them.
+the angle step (see :func:`dtid.simulator.simulate.substeps`); the engine torque is held over them.
 
 Events on the angle grid, at the start of a step, in this order:
 
@@ -19,15 +19,15 @@ Events on the angle grid, at the start of a step, in this order:
 The ECU's request at a speed sample is the controller's output (``delay`` samples old) plus the
 test torque request; the controller acts on the error reference - measured speed (optionally
 low-passed): proportional, integral and a filtered derivative of the measured speed (see
-:class:`simulator.controller.IdleController`). A starting stroke takes that request plus its
+:class:`dtid.simulator.controller.IdleController`). A starting stroke takes that request plus its
 entry of the *drive*. Reference and drive are indexed by crank angle: ``reference[i]`` is the
 reference at the (i+1)-th speed sample of the run (the last entry holds after the end), and
 ``drive[n]`` the torque added to the n-th stroke's request (the last holds after the end). A
 vehicle's own ECU has one reference entry, its set-point, and no drive. The identification's
 model of a recorded test instead drives each stroke with the torque request the vehicle's
 stroke at that crank angle took, and keeps the simulated speed on the recorded one, sample by
-sample, with a slow controller of its own (:mod:`identification.idle_loop`); the test torque
-requests are then already in the drive and the request table is empty.
+sample, with a slow controller of its own (:mod:`dtid.identification.model.idle_loop`); the test
+torque requests are then already in the drive and the request table is empty.
 
 A run may be advanced in segments: :func:`advance` continues a state vector made by
 :func:`initial_state` (the virtual vehicle steps the plant in real time this way, with the request
@@ -42,7 +42,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from simulator.angle_grid import (
+from dtid.simulator.angle_grid import (
     N_CYL,
     N_WIN,
     RPM_PER_RAD_S,
@@ -51,7 +51,7 @@ from simulator.angle_grid import (
     STEPS_PER_SPEED_SAMPLE,
     STEPS_PER_STROKE,
 )
-from simulator.couplings import (
+from dtid.simulator.couplings import (
     backlash_torque,
     backlash_update,
     dmf_smooth_torque,
@@ -73,7 +73,7 @@ MAX_SPEED_RATIO = 3.0
 """The run stops above this multiple of the set-point speed (run-away)."""
 
 
-# Layout of a controller array (:meth:`simulator.controller.IdleController.as_array`).
+# Layout of a controller array (:meth:`dtid.simulator.controller.IdleController.as_array`).
 C_SETPOINT, C_KP, C_KI, C_U_MIN, C_U_MAX, C_CLOSED, C_KD, C_D_TAU, C_DELAY, C_LATCH, C_E_TAU = (
     range(11)
 )
@@ -170,11 +170,11 @@ def advance(
         Plant state (:func:`initial_state`), updated in place to the first angle step at or
         after ``t_end``, so that consecutive calls continue one run exactly.
     params
-        Drivetrain parameters in the order of :data:`simulator.parameters.NAMES`, SI units.
+        Drivetrain parameters in the order of :data:`dtid.simulator.parameters.NAMES`, SI units.
     combustion_shape, compression, inertia
-        Engine tables of :class:`simulator.engine.EngineTables`.
+        Engine tables of :class:`dtid.simulator.engine.EngineTables`.
     controller
-        :meth:`simulator.controller.IdleController.as_array` (layout ``C_*``).
+        :meth:`dtid.simulator.controller.IdleController.as_array` (layout ``C_*``).
     reference
         (>= 1,) the controller's reference speed per speed sample of the run, rpm (the last
         holds after the end).

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simulator.parameters import DrivetrainParameters
+from dtid.simulator.parameters import DrivetrainParameters
 
 
 def three_mass_matrices(p: DrivetrainParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

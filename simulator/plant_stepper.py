@@ -1,9 +1,9 @@
 """The plant advanced in segments of simulated time, for a vehicle that runs in real time.
 
-:func:`simulator.simulate.simulate` runs a whole test against a known request table; a virtual
+:func:`dtid.simulator.simulate.simulate` runs a whole test against a known request table; a virtual
 vehicle does not know its requests in advance. :class:`PlantStepper` keeps the kernel's state
 vector and advances it segment by segment with the test torque the ECU holds at that moment,
-through the same numba kernel (:func:`simulator.kernel.advance`), so the physics is the
+through the same numba kernel (:func:`dtid.simulator.kernel.advance`), so the physics is the
 simulator's own.
 """
 
@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulator.kernel import S_T, STATUS_BUFFER_FULL, STATUS_OK, advance, initial_state
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, output_capacity, substeps
+from dtid.simulator.kernel import S_T, STATUS_BUFFER_FULL, STATUS_OK, advance, initial_state
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, output_capacity, substeps
 
 
 class PlantStepper:
@@ -73,8 +73,9 @@ class PlantStepper:
         -------
         speed, torque
             The segment's speed events (n, 5) and stroke events (m, 3) in the kernel's columns
-            (:data:`simulator.kernel.SPEED_COLUMNS`, :data:`simulator.kernel.TORQUE_COLUMNS`).
-            Empty once the engine has stalled or run away (:attr:`stalled`).
+            (:data:`dtid.simulator.kernel.SPEED_COLUMNS`,
+            :data:`dtid.simulator.kernel.TORQUE_COLUMNS`). Empty once the engine has stalled or run
+            away (:attr:`stalled`).
         """
         duration = t_end - self.time_s
         if self.stalled or duration <= 0:

@@ -1,4 +1,4 @@
-"""Run the plant: the Python side of the numba kernels in :mod:`simulator.kernel`.
+"""Run the plant: the Python side of the numba kernels in :mod:`dtid.simulator.kernel`.
 
 The wrappers validate, draw the random numbers from a seeded numpy Generator, preallocate the
 outputs and hand everything to the compiled kernels, so a run is reproducible from its seed
@@ -13,11 +13,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dtid.errors import AnalysisError, ConfigError
-from simulator.angle_grid import RPM_PER_RAD_S, STEP_RAD, STEPS_PER_SPEED_SAMPLE, STEPS_PER_STROKE
-from simulator.chirp import TestPlan, requested_test_torques
-from simulator.controller import IdleController
-from simulator.engine import EngineGeometry, EngineTables, engine_tables
-from simulator.kernel import (
+from dtid.simulator.angle_grid import (
+    RPM_PER_RAD_S,
+    STEP_RAD,
+    STEPS_PER_SPEED_SAMPLE,
+    STEPS_PER_STROKE,
+)
+from dtid.simulator.chirp import TestPlan, requested_test_torques
+from dtid.simulator.controller import IdleController
+from dtid.simulator.engine import EngineGeometry, EngineTables, engine_tables
+from dtid.simulator.kernel import (
     MAX_SPEED_RATIO,
     MIN_SPEED_RATIO,
     STATUS_OK,
@@ -25,7 +30,7 @@ from simulator.kernel import (
     run_plant,
     run_plant_batch,
 )
-from simulator.parameters import NAMES, DrivetrainParameters
+from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
 STABILITY_LIMIT = 0.5
 """Largest omega*h (and damping rate * h) a substep may take; symplectic Euler is stable below 2."""
@@ -155,9 +160,9 @@ class SimulationResult:
         Parameters
         ----------
         speed
-            (n, 5) speed events, columns :data:`simulator.kernel.SPEED_COLUMNS`.
+            (n, 5) speed events, columns :data:`dtid.simulator.kernel.SPEED_COLUMNS`.
         torque
-            (m, 3) stroke events, columns :data:`simulator.kernel.TORQUE_COLUMNS`.
+            (m, 3) stroke events, columns :data:`dtid.simulator.kernel.TORQUE_COLUMNS`.
         requests
             The tool's request times, s, and values, N*m.
         parameters, plan, options
@@ -189,7 +194,7 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
     Parameters
     ----------
     params
-        Parameters ordered as :data:`simulator.parameters.NAMES`.
+        Parameters ordered as :data:`dtid.simulator.parameters.NAMES`.
     controller
         Gives the set-point, hence the step time.
     """
@@ -299,9 +304,9 @@ class BatchResult:
     Attributes
     ----------
     speed
-        (n_jobs, n_max, 5), columns :data:`simulator.kernel.SPEED_COLUMNS`.
+        (n_jobs, n_max, 5), columns :data:`dtid.simulator.kernel.SPEED_COLUMNS`.
     torque
-        (n_jobs, n_max, 3), columns :data:`simulator.kernel.TORQUE_COLUMNS`.
+        (n_jobs, n_max, 3), columns :data:`dtid.simulator.kernel.TORQUE_COLUMNS`.
     n_speed, n_torque
         Valid rows per job.
     status
@@ -366,7 +371,7 @@ def replay_batch(
     Parameters
     ----------
     params
-        (n_jobs, 12) parameters ordered as :data:`simulator.parameters.NAMES`, SI units.
+        (n_jobs, 12) parameters ordered as :data:`dtid.simulator.parameters.NAMES`, SI units.
     request_t, request_nm
         The test-torque requests: times (s, increasing) and values (N*m), shared by all jobs.
     scales
@@ -390,7 +395,7 @@ def replay_batch(
         controller's set-point by default (a vehicle's own ECU).
     drive
         Torque added to each stroke's request, N*m, per stroke from the start; none by default
-        (see :mod:`simulator.kernel`).
+        (see :mod:`dtid.simulator.kernel`).
 
     Returns
     -------

@@ -42,9 +42,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from dtid.errors import ConfigError
-from simulator.angle_grid import N_CYL
-from simulator.engine import EngineGeometry
-from simulator.parameters import read_toml
+from dtid.simulator.angle_grid import N_CYL
+from dtid.simulator.engine import EngineGeometry
+from dtid.simulator.parameters import read_toml
 
 ENGINE_KEYS: dict[str, tuple[str, str]] = {
     "bore": ("bore_m", "m"),
@@ -68,7 +68,7 @@ class VehicleData:
         Crank-train data (the reference engine's where not given).
     speed_average
         The speed sensor's arithmetic, ``"speeds"`` or ``"times"``
-        (:class:`simulator.simulate.SimulationOptions`).
+        (:class:`dtid.simulator.simulate.SimulationOptions`).
     given
         The ``[engine]`` and ``[sensors]`` keys the file gave.
     source

@@ -12,9 +12,9 @@ from __future__ import annotations
 import can
 import numpy as np
 
-from dbc.interface import VehicleInterface
-from dbc.tool_state import HEARTBEAT_PERIOD_S, TOOL_CHIRP, TOOL_DONE, TOOL_SETTLING
-from simulator.simulate import SimulationResult
+from dtid.dbc.interface import VehicleInterface
+from dtid.dbc.tool_state import HEARTBEAT_PERIOD_S, TOOL_CHIRP, TOOL_DONE, TOOL_SETTLING
+from dtid.simulator.simulate import SimulationResult
 
 _COUNTER_MODULO = {"speed": 1 << 16, "test_torque": 16}
 """Counter wrap per role (the product DBC's signal widths); 8 bits otherwise."""

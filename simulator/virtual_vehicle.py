@@ -1,11 +1,11 @@
 """The simulator as the vehicle's engine ECU on a CAN bus (``dtid vehicle``).
 
-The virtual vehicle runs the numba plant (:class:`simulator.plant_stepper.PlantStepper`) paced to
-wall time, optionally faster by a factor (``speedup``): bus time = wall time since its start times
-the speedup. Each tick it takes the test-torque requests that arrived (accepted or dropped as the
-ECU does, :class:`simulator.ecu_requests.RequestReceiver`), advances the plant to the current bus
-time with the test torque it holds, and sends the speed, torque-request and mean-torque frames of
-that segment through the DBC (:class:`simulator.vehicle_frames.EcuFrames`).
+The virtual vehicle runs the numba plant (:class:`dtid.simulator.plant_stepper.PlantStepper`) paced
+to wall time, optionally faster by a factor (``speedup``): bus time = wall time since its start
+times the speedup. Each tick it takes the test-torque requests that arrived (accepted or dropped as
+the ECU does, :class:`dtid.simulator.ecu_requests.RequestReceiver`), advances the plant to the
+current bus time with the test torque it holds, and sends the speed, torque-request and mean-torque
+frames of that segment through the DBC (:class:`dtid.simulator.vehicle_frames.EcuFrames`).
 
 For fault tests it can drop, duplicate or corrupt its own frames on the way to the bus
 (:class:`BusFaults`) and step the idle set-point at a given bus time (a disturbance that drives
@@ -24,11 +24,11 @@ from threading import Event
 import can
 import numpy as np
 
-from dbc.interface import VehicleInterface
+from dtid.dbc.interface import VehicleInterface
 from dtid.errors import ConfigError
-from simulator.ecu_requests import RequestReceiver
-from simulator.plant_stepper import PlantStepper
-from simulator.vehicle_frames import EcuFrames
+from dtid.simulator.ecu_requests import RequestReceiver
+from dtid.simulator.plant_stepper import PlantStepper
+from dtid.simulator.vehicle_frames import EcuFrames
 
 TICK_S = 0.001
 """Longest wall time between two plant segments, s."""

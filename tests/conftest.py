@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from identification.testdata import TestData, from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters, reference_parameters
-from simulator.simulate import SimulationOptions, SimulationResult, simulate
+from dtid.identification.samples.testdata import TestData, from_simulation
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.simulate import SimulationOptions, SimulationResult, simulate
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 """Third-party DBCs and CAN logs beside the repository (never copied into it)."""

@@ -17,11 +17,11 @@ from types import SimpleNamespace
 import pytest
 import zmq
 
-from acquisition import netns
-from acquisition.bus import SETUP_HINT, _size_receive_buffer, open_bus
-from acquisition.clock import BusClock
-from acquisition.config import BusConfig, PipelineConfig
-from acquisition.server import EventServer
+from dtid.acquisition import netns
+from dtid.acquisition.bus import SETUP_HINT, _size_receive_buffer, open_bus
+from dtid.acquisition.clock import BusClock
+from dtid.acquisition.config import BusConfig, PipelineConfig
+from dtid.acquisition.server import EventServer
 from dtid.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

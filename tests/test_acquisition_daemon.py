@@ -29,7 +29,7 @@ import pytest
 import zmq
 from can.interfaces.virtual import channels as virtual_channels
 
-from acquisition.config import (
+from dtid.acquisition.config import (
     AcquisitionConfig,
     BusConfig,
     OutputConfig,
@@ -37,14 +37,14 @@ from acquisition.config import (
     SafetyConfig,
     TestConfig,
 )
-from acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
-from acquisition.health import HealthCounts
-from acquisition.logfile import read_log
-from acquisition.sequence import ZERO_REQUESTS, ToolFrames
-from acquisition.stream import decode_event
-from dbc.checksum import verify_checksum
-from dbc.loader import load_interface
-from dbc.tool_state import TOOL_ABORT
+from dtid.acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
+from dtid.acquisition.health import HealthCounts
+from dtid.acquisition.logfile import read_log
+from dtid.acquisition.sequence import ZERO_REQUESTS, ToolFrames
+from dtid.acquisition.stream import decode_event
+from dtid.dbc.checksum import verify_checksum
+from dtid.dbc.loader import load_interface
+from dtid.dbc.tool_state import TOOL_ABORT
 from dtid.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,9 +6,9 @@ import can
 import numpy as np
 import pytest
 
-from acquisition.health import CounterTracker, EchoFilter, Health, counter_moduli
-from dbc.interface import RoleSeries
-from dbc.loader import load_interface
+from dtid.acquisition.health import CounterTracker, EchoFilter, Health, counter_moduli
+from dtid.dbc.interface import RoleSeries
+from dtid.dbc.loader import load_interface
 
 INTERFACE = load_interface()
 

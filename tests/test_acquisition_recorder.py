@@ -11,8 +11,8 @@ from pathlib import Path
 import can
 import pytest
 
-from acquisition.logfile import read_log
-from acquisition.recorder import Recorder, new_session_directory
+from dtid.acquisition.logfile import read_log
+from dtid.acquisition.recorder import Recorder, new_session_directory
 from dtid.errors import RecordingError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,7 +82,7 @@ import os, signal, sys
 sys.path.insert(0, {root!r})
 sys.path.insert(0, {tests!r})
 from test_acquisition_recorder import frames
-from acquisition.recorder import Recorder
+from dtid.acquisition.recorder import Recorder
 start = {start!r}
 recorder = Recorder(__import__("pathlib").Path({path!r}), start, 60.0, "vcan0")
 written = frames(start, {flushed} + {unflushed})

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from acquisition.config import SafetyConfig
-from acquisition.safety import SafetyMonitor
+from dtid.acquisition.config import SafetyConfig
+from dtid.acquisition.safety import SafetyMonitor
 
 CONFIG = SafetyConfig(speed_window_rpm=100.0, vehicle_timeout_s=0.2)
 T0 = 1000.0

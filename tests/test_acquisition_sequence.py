@@ -7,14 +7,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from acquisition.sequence import ToolFrames, phases
-from dbc import tool_state
-from dbc.checksum import verify_checksum
-from dbc.loader import load_interface
+from dtid.acquisition.sequence import ToolFrames, phases
+from dtid.dbc import tool_state
+from dtid.dbc.checksum import verify_checksum
+from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
-from simulator import simulate
-from simulator.chirp import TestPlan
-from simulator.vehicle_frames import simulation_frames
+from dtid.simulator import simulate
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.vehicle_frames import simulation_frames
 
 INTERFACE = load_interface()
 PLAN = TestPlan(amplitudes_nm=(5.0, 10.0, 2.0), duration_s=1.0, settle_s=0.3, pause_s=0.2)

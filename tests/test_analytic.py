@@ -9,13 +9,13 @@ import pytest
 from scipy import integrate, optimize
 
 from dtid.errors import AnalysisError
-from identification.analytic import (
+from dtid.identification.search.analytic import (
     free_play_for,
     inseparable,
     linearized_stiffness,
     stiffness_and_play,
 )
-from simulator.couplings import dead_zone
+from dtid.simulator.couplings import dead_zone
 
 
 def test_two_amplitudes_recover_stiffness_and_play() -> None:

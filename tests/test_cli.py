@@ -120,7 +120,7 @@ def test_map_naming_an_unknown_signal(
 def test_recording_without_chirp(
     tmp_path: Path, recording: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from acquisition.logfile import read_log, write_log
+    from dtid.acquisition.logfile import read_log, write_log
 
     quiet = tmp_path / "quiet.blf"
     write_log(quiet, [f for f in read_log(recording) if f.timestamp < 2.5])

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identification.combustion import stroke_variation, variation_and_noise
-from identification.test_setup import MeasuredTest
-from identification.testdata import TestData, from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.identification.model.combustion import stroke_variation, variation_and_noise
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import TestData, from_simulation
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 
 def test_stroke_variation_of_a_known_sequence() -> None:

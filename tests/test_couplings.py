@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from simulator.couplings import (
+from dtid.simulator.couplings import (
     backlash_torque,
     backlash_update,
     dead_zone,

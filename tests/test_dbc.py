@@ -9,8 +9,8 @@ import cantools
 import numpy as np
 import pytest
 
-from acquisition.logfile import read_log
-from dbc import (
+from dtid.acquisition.logfile import read_log
+from dtid.dbc import (
     DEFAULT_DBC,
     DEFAULT_SIGNAL_MAP,
     REQUIRED_ROLES,
@@ -20,7 +20,7 @@ from dbc import (
     load_signal_map,
     verify_checksum,
 )
-from dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
+from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import ConfigError, DbcError
 
 PRODUCT_MESSAGES = {

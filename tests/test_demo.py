@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from dtid.cli import main
-from identification.parameterization import theta_from_parameters
-from simulator.parameters import reference_parameters
+from dtid.identification.search.parameterization import theta_from_parameters
+from dtid.simulator.parameters import reference_parameters
 
 pytestmark = pytest.mark.slow
 

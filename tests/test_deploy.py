@@ -1,6 +1,6 @@
 """deploy/: the example configuration, the systemd units, the CAN set-up script, the guide.
 
-The example configuration must name every key of acquisition.config (so it cannot drift), the
+The example configuration must name every key of dtid.acquisition.config (so it cannot drift), the
 units must start subcommands that exist with files the installation provides, and setup-can.sh
 is run against a stand-in ``ip`` that keeps the interfaces' state in a JSON file.
 """
@@ -20,8 +20,8 @@ from pathlib import Path, PurePosixPath
 
 import pytest
 
-from acquisition.config import _SECTIONS, AcquisitionConfig, load_config
-from acquisition.stream import ABORT_REASONS
+from dtid.acquisition.config import _SECTIONS, AcquisitionConfig, load_config
+from dtid.acquisition.stream import ABORT_REASONS
 from dtid.cli import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]

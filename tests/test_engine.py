@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from simulator.angle_grid import N_CYL, STEP_RAD, STEPS_PER_CYCLE, STEPS_PER_STROKE
-from simulator.engine import EngineGeometry, EngineTables, engine_tables
+from dtid.simulator.angle_grid import N_CYL, STEP_RAD, STEPS_PER_CYCLE, STEPS_PER_STROKE
+from dtid.simulator.engine import EngineGeometry, EngineTables, engine_tables
 
 PHI = np.arange(STEPS_PER_CYCLE) * STEP_RAD
 

@@ -7,12 +7,12 @@ import pytest
 from scipy import signal
 
 from dtid.errors import AnalysisError
-from identification.frf import estimate_frf
-from identification.runs import find_runs
-from identification.sensor_response import speed_filter_gain, torque_hold_gain
-from identification.testdata import Series, TestData
-from simulator.angle_grid import N_WIN, step_time
-from simulator.chirp import TestPlan, requested_test_torque
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.model.sensor_response import speed_filter_gain, torque_hold_gain
+from dtid.identification.samples.testdata import Series, TestData
+from dtid.simulator.angle_grid import N_WIN, step_time
+from dtid.simulator.chirp import TestPlan, requested_test_torque
 
 
 def test_runs_found_with_their_chirp_parameters() -> None:
@@ -45,8 +45,8 @@ def test_holes_in_the_requests_do_not_bend_the_sweep() -> None:
 
 def test_holes_read_as_the_ecu_applied_them_do_not_bend_the_sweep() -> None:
     """The same holes with the test torque zero from the ECU's timeout on (as a recording is
-    read, :mod:`identification.recording`): a zero sample is crossed twice at one instant, and
-    the sweep is still found as sent, without a division by zero on the way."""
+    read, :mod:`dtid.identification.samples.recording`): a zero sample is crossed twice at one
+    instant, and the sweep is still found as sent, without a division by zero on the way."""
     plan = TestPlan(amplitudes_nm=(2.0,), f1_hz=1.0, f2_hz=15.0, duration_s=60.0)
     t = np.arange(0.0, plan.end_s, plan.request_period_s)
     value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])

@@ -7,21 +7,25 @@ import dataclasses
 import pytest
 
 from dtid.errors import AnalysisError, ConfigError
-from identification.identify import (
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import run_identification
+from dtid.identification.samples.testdata import TestData, from_simulation
+from dtid.identification.search.identify import (
     SearchSettings,
     amplitude_levels,
     engine_gain,
     identify,
     split_runs,
 )
-from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.pipeline import run_identification
-from identification.start_values import start_thetas
-from identification.test_setup import MeasuredTest
-from identification.testdata import TestData, from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.identification.search.start_values import start_thetas
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 
 @pytest.fixture(scope="module")
@@ -177,8 +181,9 @@ def test_the_combustion_variation_is_told_from_the_sensor_noise_or_given(
 ) -> None:
     """The idle scatter counts the torque sensor's noise in (0.3 N*m on about 15 N*m:
     sqrt(0.03^2 + 0.02^2) = 0.036 for the simulated 3 %); the recorded torque request tells the
-    two apart (:func:`identification.combustion.variation_and_noise`), and the model repeats
-    the 3 %. A value given with --fix replaces it in the fit, the validation and the JSON."""
+    two apart (:func:`dtid.identification.model.combustion.variation_and_noise`), and the model
+    repeats the 3 %. A value given with --fix replaces it in the fit, the validation and the
+    JSON."""
     data = from_simulation(simulate(reference, TestPlan(), SimulationOptions(), seed=3))
     measured = MeasuredTest.from_data("reference", data, 0.25)
     assert measured.combustion_variation == pytest.approx(0.03, rel=0.1)

@@ -14,14 +14,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from identification.idle_loop import MEASURED_TORQUE, RECORDED_REQUEST, latch
-from identification.model_response import model_drv_db
-from identification.test_setup import MeasuredTest
-from identification.testdata import TestData, from_simulation
-from simulator.chirp import TestPlan
-from simulator.controller import IdleController
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.identification.model.idle_loop import MEASURED_TORQUE, RECORDED_REQUEST, latch
+from dtid.identification.model.response import model_drv_db
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import TestData, from_simulation
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.controller import IdleController
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 ECUS = {
     "slow PI": IdleController(kp_nm_per_rpm=0.06, ki_nm_per_rpm_s=0.05),

@@ -27,14 +27,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtid.commands.common import measured_tests
-from identification.identify import Objective, refine
-from identification.model_response import model_drv_db
-from identification.objective import nrmse
-from identification.parameterization import THETA_NAMES, theta_from_parameters
-from identification.pipeline import run_identification
-from simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
-from simulator.vehicle_data import load_vehicle_data
+from dtid.cli.commands.common import measured_tests
+from dtid.identification.model.response import model_drv_db
+from dtid.identification.pipeline import run_identification
+from dtid.identification.search.identify import Objective, refine
+from dtid.identification.search.objective import nrmse
+from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
+from dtid.simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
+from dtid.simulator.vehicle_data import load_vehicle_data
 
 INDEPENDENT = Path(__file__).resolve().parents[2] / "shared" / "independent"
 TARGETS = {

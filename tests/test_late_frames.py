@@ -8,16 +8,16 @@ import can
 import numpy as np
 import pytest
 
-from acquisition.logfile import write_log
-from dbc.loader import load_interface
-from identification.frf import estimate_frf
-from identification.late_frames import retime_late_bursts
-from identification.recording import load_recording
-from identification.runs import find_runs
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import simulate
-from simulator.vehicle_frames import simulation_frames
+from dtid.acquisition.logfile import write_log
+from dtid.dbc.loader import load_interface
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.samples.late_frames import retime_late_bursts
+from dtid.identification.samples.recording import load_recording
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import simulate
+from dtid.simulator.vehicle_frames import simulation_frames
 
 INTERVAL = 0.015  # s: a crank event (pi/2) at 1000 rpm
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simulator.linear import (
+from dtid.simulator.linear import (
     three_mass_frf,
     three_mass_modes,
     two_mass_characteristics,
     two_mass_frf,
 )
-from simulator.parameters import DrivetrainParameters
+from dtid.simulator.parameters import DrivetrainParameters
 
 F = np.linspace(0.5, 40.0, 2000)
 

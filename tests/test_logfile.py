@@ -6,7 +6,7 @@ import can
 import numpy as np
 import pytest
 
-from acquisition.logfile import SUPPORTED_SUFFIXES, read_log, write_log
+from dtid.acquisition.logfile import SUPPORTED_SUFFIXES, read_log, write_log
 from dtid.errors import RecordingError
 
 FORMATS = [".blf", ".asc", ".log"]

@@ -7,21 +7,21 @@ import dataclasses
 import numpy as np
 import pytest
 
-from identification.frf import estimate_frf
-from identification.model_response import SETTLE_S, ModelTest, model_drv_db
-from identification.objective import FAILED_NRMSE, nrmse, summed_nrmse
-from identification.parameterization import (
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.model.response import SETTLE_S, ModelTest, model_drv_db
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import TestData, from_simulation
+from dtid.identification.search.objective import FAILED_NRMSE, nrmse, summed_nrmse
+from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
     theta_to_arrays,
 )
-from identification.runs import find_runs
-from identification.test_setup import MeasuredTest
-from identification.testdata import TestData, from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 
 def test_theta_round_trip(reference: DrivetrainParameters) -> None:

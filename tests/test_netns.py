@@ -28,7 +28,7 @@ from hil.namespace import (
     run_scenario,
 )
 
-from acquisition import netns
+from dtid.acquisition import netns
 from dtid.errors import ConfigError
 
 EXCHANGE = ROOT / "tests" / "hil" / "scenarios" / "exchange.py"
@@ -136,7 +136,7 @@ def test_namespace_has_only_loopback_and_the_guard_passes() -> None:
     needs_namespace()
     probe = (
         "import json\n"
-        "from acquisition.netns import check_bus_allowed, network_interfaces\n"
+        "from dtid.acquisition.netns import check_bus_allowed, network_interfaces\n"
         "check_bus_allowed('udp_multicast')\n"
         "print(json.dumps(network_interfaces()))\n"
     )

@@ -7,7 +7,12 @@ from pathlib import Path
 import pytest
 
 from dtid.errors import ConfigError
-from simulator.parameters import NAMES, DrivetrainParameters, load_parameters, reference_parameters
+from dtid.simulator.parameters import (
+    NAMES,
+    DrivetrainParameters,
+    load_parameters,
+    reference_parameters,
+)
 
 PAPER_NAMES = "J1 J2 J3 c12 c23 d12 d23 Tc12 eps12 eps23 T_loss K".split()
 

@@ -5,9 +5,22 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identification.identify import Objective, SearchSettings, engine_gain, identify, split_runs
-from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.profile import (
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import (
+    Objective,
+    SearchSettings,
+    engine_gain,
+    identify,
+    split_runs,
+)
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.identification.setups import two_mass
+from dtid.identification.uncertainty.profile import (
     BIN_CORRELATION,
     LOCAL_BINS,
     THRESHOLD,
@@ -15,12 +28,9 @@ from identification.profile import (
     profile,
     statistic,
 )
-from identification.setups import two_mass
-from identification.test_setup import MeasuredTest
-from identification.testdata import from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters, reference_parameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 
 def test_interval_from_threshold_crossings() -> None:

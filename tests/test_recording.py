@@ -8,18 +8,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from acquisition.logfile import write_log
-from dbc.loader import load_interface
-from dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
-from identification.frf import FrfEstimate, estimate_frf
-from identification.recording import _in_time_order, load_recording
-from identification.runs import find_runs
-from identification.testdata import Series
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, SimulationResult, replay_batch, simulate
-from simulator.simulate import test_requests as plan_requests
-from simulator.vehicle_frames import simulation_frames
+from dtid.acquisition.logfile import write_log
+from dtid.dbc.loader import load_interface
+from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
+from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.samples.recording import _in_time_order, load_recording
+from dtid.identification.samples.testdata import Series
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, SimulationResult, replay_batch, simulate
+from dtid.simulator.simulate import test_requests as plan_requests
+from dtid.simulator.vehicle_frames import simulation_frames
 
 DATA = Path(__file__).parent / "data"
 FORMATS = (".blf", ".asc", ".log")

@@ -12,15 +12,15 @@ import numpy as np
 import pytest
 
 from dtid.cli import main
-from identification.identify import engine_gain
-from identification.model_response import model_drv_db
-from identification.objective import nrmse
-from identification.pipeline import RunSelection, identification_runs, validation_runs
-from identification.test_setup import MeasuredTest
-from identification.testdata import from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.identification.model.response import model_drv_db
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import RunSelection, identification_runs, validation_runs
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import engine_gain
+from dtid.identification.search.objective import nrmse
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 DURATION_S = 20.0
 

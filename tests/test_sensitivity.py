@@ -10,20 +10,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identification.identify import (
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import TestData, from_simulation
+from dtid.identification.search.identify import (
     Objective,
     _levenberg_marquardt,
     confirmed,
     engine_gain,
     split_runs,
 )
-from identification.parameterization import THETA_NAMES, Parameterization, theta_from_parameters
-from identification.sensitivity import compensation, jacobian
-from identification.test_setup import MeasuredTest
-from identification.testdata import TestData, from_simulation
-from simulator.chirp import TestPlan
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import SimulationOptions, simulate
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.identification.uncertainty.sensitivity import compensation, jacobian
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, simulate
 
 FREE = ("J_sum", "x12", "c12", "c23", "d12")
 

@@ -1,8 +1,8 @@
 """The findings of section IV-B for setups 1-4, measured with the rise of each profile.
 
 The rise (left, right) of a profile is how far it climbs on each side of its minimum inside the
-bounds (:attr:`identification.profile.Profile.rise`); below ``FLAT_RISE`` on a side it is flat.
-The paper's findings, stated after its list of setups, are the assertions.
+bounds (:attr:`dtid.identification.uncertainty.profile.Profile.rise`); below ``FLAT_RISE`` on a side
+it is flat. The paper's findings, stated after its list of setups, are the assertions.
 """
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from identification.parameterization import theta_from_parameters
-from identification.profile import FLAT_RISE
-from identification.setups import profile_setup, setup
+from dtid.identification.search.parameterization import theta_from_parameters
+from dtid.identification.setups import profile_setup, setup
+from dtid.identification.uncertainty.profile import FLAT_RISE
 
 pytestmark = pytest.mark.slow
 CHIRP_S = 20.0

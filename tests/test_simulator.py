@@ -6,16 +6,16 @@ import numpy as np
 import pytest
 
 from dtid.errors import AnalysisError
-from identification.frf import estimate_frf
-from identification.runs import find_runs
-from identification.sensor_response import stroke_hold_gain
-from identification.testdata import from_simulation
-from simulator.chirp import TestPlan
-from simulator.controller import IdleController
-from simulator.kernel import run_plant
-from simulator.linear import three_mass_frf
-from simulator.parameters import DrivetrainParameters
-from simulator.simulate import (
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.model.sensor_response import stroke_hold_gain
+from dtid.identification.samples.testdata import from_simulation
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.controller import IdleController
+from dtid.simulator.kernel import run_plant
+from dtid.simulator.linear import three_mass_frf
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import (
     SimulationOptions,
     SimulationResult,
     output_capacity,
@@ -209,11 +209,11 @@ def test_a_tooth_timer_averages_times_and_the_model_need_not_know(
     """A speed sensor that adds up tooth times reports the harmonic mean of the step speeds, not
     their mean (eq. 9). On a clean 10 N*m run the model repeats such a vehicle's |G_DRV| at the
     truth better when told (vehicle data) than when not."""
-    from identification.model_response import model_drv_db
-    from identification.objective import nrmse
-    from identification.test_setup import MeasuredTest
-    from identification.testdata import from_simulation
-    from simulator.vehicle_data import VehicleData
+    from dtid.identification.model.response import model_drv_db
+    from dtid.identification.model.test_setup import MeasuredTest
+    from dtid.identification.samples.testdata import from_simulation
+    from dtid.identification.search.objective import nrmse
+    from dtid.simulator.vehicle_data import VehicleData
 
     plan = TestPlan(amplitudes_nm=(10.0,), duration_s=20.0)
     speeds = simulate(reference, plan, SimulationOptions.clean())

@@ -8,8 +8,8 @@ import pytest
 
 from dtid.cli import main
 from dtid.errors import ConfigError
-from simulator.engine import EngineGeometry
-from simulator.vehicle_data import load_vehicle_data
+from dtid.simulator.engine import EngineGeometry
+from dtid.simulator.vehicle_data import load_vehicle_data
 
 TRUTH_LIKE = """
 [drivetrain]  # another table (a truth, a prior): not read here

@@ -10,16 +10,16 @@ import can
 import numpy as np
 import pytest
 
-from dbc.checksum import verify_checksum
-from dbc.loader import load_interface
-from dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
-from simulator.chirp import TestPlan
-from simulator.ecu_requests import RequestReceiver
-from simulator.parameters import reference_parameters
-from simulator.plant_stepper import PlantStepper
-from simulator.simulate import SimulationOptions, simulate
-from simulator.simulate import test_requests as plan_requests
-from simulator.virtual_vehicle import BusFaults, VirtualVehicle
+from dtid.dbc.checksum import verify_checksum
+from dtid.dbc.loader import load_interface
+from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.ecu_requests import RequestReceiver
+from dtid.simulator.parameters import reference_parameters
+from dtid.simulator.plant_stepper import PlantStepper
+from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.simulate import test_requests as plan_requests
+from dtid.simulator.virtual_vehicle import BusFaults, VirtualVehicle
 
 INTERFACE = load_interface()
 

@@ -1,7 +1,7 @@
 """The identification worker (issue 4): event merging, live == replay == `dtid identify`, restart.
 
 A simulated test (5 and 10 N*m identify, 2 N*m validates, 20 s chirps) is cut into the daemon's
-events (acquisition.stream's contract) and served by a fake daemon over ipc: PUB of the events,
+events (dtid.acquisition.stream's contract) and served by a fake daemon over ipc: PUB of the events,
 REP of the kept ones. The worker's results are compared with ``dtid identify`` and ``dtid frf``
 on the log written from the same frames.
 """
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import os
 import shutil
 import signal
 import socket
@@ -28,18 +27,18 @@ import numpy as np
 import pytest
 import zmq
 
-from acquisition.config import AcquisitionConfig, PipelineConfig, TestConfig
-from acquisition.logfile import read_log, write_log
-from acquisition.stream import encode_event, samples_roles
-from dbc.loader import load_interface
+from dtid.acquisition.config import AcquisitionConfig, PipelineConfig, TestConfig
+from dtid.acquisition.logfile import read_log, write_log
+from dtid.acquisition.stream import encode_event, samples_roles
 from dtid.cli import main
-from identification.identify import SearchSettings
-from identification.live import EventLog, LiveSession
-from identification.pipeline import HOLD_OUT_S
-from identification.recording import load_recording
-from identification.worker import Worker, WorkerOptions, endpoint
-from simulator.simulate import SimulationOptions, simulate
-from simulator.vehicle_frames import simulation_frames
+from dtid.dbc.loader import load_interface
+from dtid.identification.pipeline import HOLD_OUT_S
+from dtid.identification.samples.recording import load_recording
+from dtid.identification.search.identify import SearchSettings
+from dtid.identification.service.live import EventLog, LiveSession
+from dtid.identification.service.worker import Worker, WorkerOptions, endpoint
+from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.vehicle_frames import simulation_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 BASE_S = 1_700_000_000.123456789
@@ -561,11 +560,9 @@ def _free_port() -> int:
 
 
 def _worker_process(config: Path, *args: str) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.Popen(
         [sys.executable, "-m", "dtid.cli", "worker", "--config", str(config), *args],
         cwd=ROOT,
-        env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

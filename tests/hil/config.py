@@ -1,9 +1,9 @@
-"""The configuration file of a scenario: acquisition.config keys, written into a test's folder.
+"""The configuration file of a scenario: dtid.acquisition.config keys, written into a test's folder.
 
 :func:`write_scenario_config` puts the HIL bus in ``[bus]``, the ZeroMQ ipc endpoints and the
 output folder inside the scenario's own folder (so runs never meet each other or a real
 installation's ``/run/dtid``), merges the scenario's own keys, and loads the file back with
-:func:`acquisition.config.load_config`, so a wrong key fails here and not inside a daemon.
+:func:`dtid.acquisition.config.load_config`, so a wrong key fails here and not inside a daemon.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from acquisition.config import AcquisitionConfig, load_config
+from dtid.acquisition.config import AcquisitionConfig, load_config
 from hil.namespace import HilBus
 
 UNIX_PATH_MAX = 107

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from acquisition.config import AcquisitionConfig
+from dtid.acquisition.config import AcquisitionConfig
 from hil.config import write_scenario_config
 from hil.namespace import HilBus, bus_unavailable, hil_bus, run_scenario
 
@@ -59,10 +59,10 @@ def compiled_kernels() -> None:
     and the first chirp's coherence fell to 0.32. The scenarios test the running product, not
     its first start after an install.
     """
-    from simulator.chirp import TestPlan
-    from simulator.parameters import reference_parameters
-    from simulator.plant_stepper import PlantStepper
-    from simulator.simulate import SimulationOptions, replay_batch, simulate
+    from dtid.simulator.chirp import TestPlan
+    from dtid.simulator.parameters import reference_parameters
+    from dtid.simulator.plant_stepper import PlantStepper
+    from dtid.simulator.simulate import SimulationOptions, replay_batch, simulate
 
     reference = reference_parameters()
     result = simulate(reference, TestPlan(amplitudes_nm=(1.0,), duration_s=2.0))

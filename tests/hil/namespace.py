@@ -9,7 +9,7 @@ namespace (``unshare --net``) whose only interface is loopback, set up as
     ip link set lo multicast on
     ip route add 224.0.0.0/4 dev lo
 
-and both the set-up (here) and the product (:func:`acquisition.netns.check_bus_allowed`) check
+and both the set-up (here) and the product (:func:`dtid.acquisition.netns.check_bus_allowed`) check
 ``/proc/net/dev`` before a bus is opened (``/sys/class/net`` does not reflect ``unshare -n``).
 Known behaviour of that interface here: only an IPv4 group delivers over loopback (IPv6 groups
 deliver nothing), a sender receives its own frames, and a burst overflows the default socket
@@ -35,10 +35,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from acquisition.netns import MULTICAST_INTERFACES, check_bus_allowed
+from dtid.acquisition.netns import MULTICAST_INTERFACES, check_bus_allowed
 
 ROOT = Path(__file__).resolve().parents[2]
-"""The repository: on the ``PYTHONPATH`` of every process the harness starts."""
+"""The repository (its ``tests/`` folder is on the ``PYTHONPATH`` of every harness process)."""
 
 HIL_BUS_ENV = "DTID_HIL_BUS"
 DEFAULT_HIL_BUS = "udp_multicast:239.74.163.2"
@@ -67,13 +67,13 @@ def unshare_argv() -> list[str]:
 
 
 def child_env(extra: Mapping[str, str] | None = None) -> dict[str, str]:
-    """The environment of a harness process: this one's, the repository and tests/ on the path.
+    """The environment of a harness process: this one's, with tests/ on the path.
 
-    The work tree (not an installed copy of the package) is what runs: scenarios start the
-    commands as ``python -m dtid.cli`` with this ``PYTHONPATH``.
+    Scenarios start the commands as ``python -m dtid.cli``: the installed package runs (the work
+    tree after ``pip install -e .``), the same the tests import.
     """
     env = dict(os.environ)
-    paths = [str(ROOT), str(ROOT / "tests")]
+    paths = [str(ROOT / "tests")]
     if env.get("PYTHONPATH"):
         paths.append(env["PYTHONPATH"])
     env["PYTHONPATH"] = os.pathsep.join(paths)
@@ -194,7 +194,8 @@ class HilBus:
         return f"{self.interface}:{self.channel}" + (f":{port}" if port is not None else "")
 
     def bus_settings(self) -> dict[str, Any]:
-        """The ``[bus]`` section of a scenario's configuration file (acquisition.config keys)."""
+        """The ``[bus]`` section of a scenario's configuration file (dtid.acquisition.config
+        keys)."""
         return {
             "interface": self.interface,
             "channel": self.channel,

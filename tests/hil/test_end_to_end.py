@@ -17,14 +17,14 @@ import cantools
 import numpy as np
 import pytest
 
-import dbc
-from acquisition.logfile import read_log
-from dbc.loader import load_interface
+import dtid.dbc
+from dtid.acquisition.logfile import read_log
 from dtid.cli import main as dtid
-from dtid.commands.common import measured_tests
-from identification.identify import SearchSettings
-from identification.pipeline import run_identification
-from simulator.parameters import reference_parameters
+from dtid.cli.commands.common import measured_tests
+from dtid.dbc.loader import load_interface
+from dtid.identification.pipeline import run_identification
+from dtid.identification.search.identify import SearchSettings
+from dtid.simulator.parameters import reference_parameters
 
 pytestmark = pytest.mark.hil
 
@@ -62,7 +62,7 @@ model draws (0.183 against 0.199). The dampings are reported there, not asserted
 
 def count_faults(log: Path) -> tuple[int, int, int]:
     """Lost, duplicated and cut frames of the vehicle's counted messages in a log."""
-    database = cantools.database.load_file(Path(dbc.__file__).parent / "drivetrain.dbc")
+    database = cantools.database.load_file(Path(dtid.dbc.__file__).parent / "drivetrain.dbc")
     counters = {"EngineSpeed": "CrankEventCounter", "EngineMeanTorque": "StrokeCounter"}
     counters["EngineTorqueRequest"] = "RequestCounter"
     lost = duplicated = cut = 0

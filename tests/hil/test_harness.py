@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from acquisition.config import AcquisitionConfig
+from dtid.acquisition.config import AcquisitionConfig
 from hil.config import toml_document, toml_value, write_scenario_config
 from hil.namespace import ROOT, HilBus, parse_hil_bus
 from hil.processes import Processes

@@ -31,7 +31,8 @@ BUS_PRIORITY = ["nice", "-n", "-5"] if os.geteuid() == 0 else []
 """Priority of vehicle and daemon (as a deployment would give the daemon): at 3x real time a
 scheduling delay of 30 ms is 0.1 s of bus time. Even so (and as much under SCHED_FIFO) the
 vehicle's frames were up to 60 ms late now and then while the worker searched, and came in a
-burst: the analysis puts such bursts back on their crank slots (identification.late_frames)."""
+burst: the analysis puts such bursts back on their crank slots
+(dtid.identification.samples.late_frames)."""
 
 
 def main() -> None:

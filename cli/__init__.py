@@ -1,0 +1,63 @@
+"""The ``dtid`` command: one subcommand per module in :mod:`dtid.cli.commands`.
+
+A user's mistake (a bad file, option or recording) ends as a one-line ``error: ...`` on stderr
+and exit status 2; ``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Sequence
+
+from dtid.cli.commands import (
+    acquire,
+    demo,
+    frf,
+    identify,
+    inspect,
+    profile,
+    simulate,
+    vehicle,
+    worker,
+)
+from dtid.errors import DtidError
+
+COMMANDS = (demo, simulate, inspect, frf, identify, profile, acquire, worker, vehicle)
+EXIT_USER_ERROR = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``dtid`` with all subcommands."""
+    parser = argparse.ArgumentParser(
+        prog="dtid",
+        description="Chirp-test drivetrain identification over CAN (drivetrain-id).",
+    )
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log more detail")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for command in COMMANDS:
+        command.add_parser(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``dtid`` with the given arguments; return the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="%(levelname)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return int(args.run(args) or 0)
+    except DtidError as error:
+        if args.debug:
+            raise
+        print(f"error: {error}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,96 @@
+"""``dtid inspect``: what a recording holds, for a user about to trust it."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from dtid.cli.commands.common import add_interface_options, write_json
+from dtid.dbc.loader import load_interface
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.samples.recording import Recording, load_recording
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register the subcommand."""
+    parser = subparsers.add_parser(
+        "inspect",
+        help="report the roles and chirp runs a recording holds",
+        description="Decode a recording and report, per role, its sample count, rate, range and "
+        "longest gap, and the chirp runs found in the test torque.",
+    )
+    parser.add_argument("recording", type=Path, help="CAN recording (.blf, .asc or .log)")
+    parser.add_argument("--json", type=Path, help="also write the report as JSON")
+    add_interface_options(parser)
+    parser.set_defaults(run=run)
+
+
+def role_summary(times: np.ndarray, values: np.ndarray) -> dict[str, float | int | None]:
+    """count, rate_hz, min, max and max_gap_s of one role's samples."""
+    count = len(times)
+    if count == 0:
+        return {"count": 0, "rate_hz": None, "min": None, "max": None, "max_gap_s": None}
+    span = float(times[-1] - times[0])
+    return {
+        "count": count,
+        "rate_hz": (count - 1) / span if span > 0 else None,
+        "min": float(values.min()),
+        "max": float(values.max()),
+        "max_gap_s": float(np.diff(times).max()) if count > 1 else None,
+    }
+
+
+def report(recording: Recording) -> dict[str, object]:
+    """The inspect report (JSON keys ``roles`` and ``runs``)."""
+    roles = {
+        role: {**role_summary(series.timestamps, series.values), "bad_frames": series.n_bad}
+        for role, series in recording.roles.items()
+    }
+    runs = (
+        [run.as_dict() for run in find_runs(recording.series("test_torque"))]
+        if "test_torque" in recording.roles
+        else []
+    )
+    return {
+        "recording": str(recording.path),
+        "frames": recording.n_frames,
+        "duration_s": recording.duration_s,
+        "roles": roles,
+        "missing_roles": list(recording.missing_roles),
+        "runs": runs,
+    }
+
+
+def _fmt(value: object, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print (and optionally save) the report."""
+    document = report(load_recording(args.recording, load_interface(args.dbc, args.signals)))
+    print(f"{document['recording']}: {document['frames']} frames, {document['duration_s']:.1f} s")
+    print(f"{'role':<16}{'count':>8}{'rate/Hz':>10}{'min':>12}{'max':>12}{'max gap/s':>11}")
+    for role, s in document["roles"].items():
+        print(
+            f"{role:<16}{s['count']:>8}{_fmt(s['rate_hz'], '.1f'):>10}"
+            f"{_fmt(s['min'], '.2f'):>12}{_fmt(s['max'], '.2f'):>12}"
+            f"{_fmt(s['max_gap_s'], '.3f'):>11}"
+        )
+        if s["count"] == 0:
+            print(f"  no frame of {role}'s message in this recording: wrong DBC or signal map?")
+        if s["bad_frames"]:
+            print(f"  {s['bad_frames']} frames of {role} could not be decoded")
+    for role in document["missing_roles"]:
+        print(f"{role:<16}not in the signal map")
+    if not document["runs"]:
+        print("no chirp runs (the test torque is zero or absent)")
+    for run in document["runs"]:
+        print(
+            f"chirp {run['start_s']:.1f}-{run['end_s']:.1f} s: {run['amplitude_nm']:.2f} N*m, "
+            f"{run['f1_hz']:.2f} -> {run['f2_hz']:.2f} Hz"
+        )
+    if args.json:
+        write_json(args.json, document)
+    return 0

@@ -1,0 +1,86 @@
+"""``dtid simulate``: run a chirp test on the simulator and write the CAN recording."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from dtid.acquisition.logfile import write_log
+from dtid.cli.commands.common import add_interface_options, positive_float
+from dtid.dbc.loader import load_interface
+from dtid.simulator.chirp import TestPlan
+from dtid.simulator.controller import IdleController
+from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.vehicle_frames import simulation_frames
+
+_DEFAULTS = TestPlan()
+VALIDATION_LAST = (5.0, 10.0, 2.0)
+"""The default chirps: the two that identify, then the one that validates (the acquisition
+daemon's order), so that nothing before the identification runs is validation data."""
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register the subcommand."""
+    parser = subparsers.add_parser(
+        "simulate",
+        help="simulate a chirp test and write the CAN recording",
+        description="Simulate the chirp test on the numba plant and write the frames the vehicle "
+        "bus would carry (.blf, .asc or candump .log by the file's suffix), timestamps in "
+        "simulated time.",
+    )
+    parser.add_argument("output", type=Path, help="recording to write (.blf, .asc or .log)")
+    parser.add_argument(
+        "--params", type=Path, help="parameter set (TOML; default: the reference vehicle)"
+    )
+    parser.add_argument(
+        "--amplitudes",
+        type=positive_float,
+        nargs="+",
+        default=list(VALIDATION_LAST),
+        metavar="NM",
+        help="chirp amplitudes in N*m, one chirp each (default: %(default)s)",
+    )
+    parser.add_argument("--f1", type=positive_float, default=_DEFAULTS.f1_hz, help="start Hz")
+    parser.add_argument("--f2", type=positive_float, default=_DEFAULTS.f2_hz, help="end Hz")
+    parser.add_argument(
+        "--duration", type=positive_float, default=_DEFAULTS.duration_s, help="seconds per chirp"
+    )
+    parser.add_argument(
+        "--setpoint",
+        type=positive_float,
+        default=IdleController().setpoint_rpm,
+        help="idle speed set-point, rpm",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of noise and combustion")
+    parser.add_argument(
+        "--clean", action="store_true", help="no combustion variation and no sensor noise"
+    )
+    parser.add_argument("--force", action="store_true", help="overwrite an existing recording")
+    add_interface_options(parser)
+    parser.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Simulate and write the recording."""
+    parameters = load_parameters(args.params) if args.params else reference_parameters()
+    plan = TestPlan(
+        amplitudes_nm=tuple(args.amplitudes),
+        f1_hz=args.f1,
+        f2_hz=args.f2,
+        duration_s=args.duration,
+    )
+    controller = IdleController(setpoint_rpm=args.setpoint)
+    options = (
+        SimulationOptions.clean(controller=controller)
+        if args.clean
+        else SimulationOptions(controller=controller)
+    )
+    interface = load_interface(args.dbc, args.signals)
+    result = simulate(parameters, plan, options, seed=args.seed)
+    count = write_log(args.output, simulation_frames(result, interface), overwrite=args.force)
+    print(
+        f"wrote {args.output}: {count} frames, {plan.end_s:.0f} s, chirps at "
+        f"{', '.join(f'{a:g}' for a in plan.amplitudes_nm)} N*m"
+    )
+    return 0

@@ -1,0 +1,101 @@
+"""``dtid worker``: estimate FRFs and identify the parameters while the daemon runs the test.
+
+Consumes the acquisition daemon's event stream (``[pipeline] blocks``, catching up from
+``[pipeline] replay``), publishes progress, each chirp's FRF and the result on
+``[pipeline] results``, and writes the result (the JSON of ``dtid identify``) and the Fig. 6 plot
+beside the session's log. The identification uses the search settings of ``dtid identify`` and
+gives what ``dtid identify`` gives on the daemon's log.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from dtid.acquisition.config import load_config
+from dtid.cli.commands.common import add_vehicle_option, vehicle_data
+from dtid.cli.commands.identify import add_search_options, print_report, search_settings
+from dtid.identification.service.worker import Worker, WorkerOptions, leave_a_core_to_the_bus
+from dtid.simulator.parameters import load_parameters
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register the subcommand."""
+    parser = subparsers.add_parser(
+        "worker",
+        help="identify from the acquisition daemon's stream while the test runs",
+        description=__doc__,
+    )
+    parser.add_argument("--config", type=Path, help="configuration file (TOML; default: defaults)")
+    parser.add_argument("--once", action="store_true", help="exit after one session has ended")
+    parser.add_argument(
+        "--prior",
+        type=Path,
+        help="parameter set (TOML) the default +-100 %% bounds centre on (default: reference)",
+    )
+    add_vehicle_option(parser)
+    add_search_options(parser)
+    parser.add_argument(
+        "--json", type=Path, help="result file (default: identification.json beside the log)"
+    )
+    parser.add_argument(
+        "--plot", type=Path, help="Fig. 6 plot (default: identification.png beside the log)"
+    )
+    parser.add_argument("--no-plot", action="store_true", help="do not plot")
+    parser.set_defaults(run=run)
+
+
+class _Terminal:
+    """One line on stderr per stage or phase change and per FRF; each result on stdout."""
+
+    def __init__(self) -> None:
+        self.last: tuple[object, ...] = ()
+
+    def __call__(self, topic: str, document: dict[str, Any]) -> None:
+        if topic == "frf":
+            print(f"FRF of the {document['amplitude_nm']:g} N*m chirp", file=sys.stderr)
+        elif topic == "result":
+            print_report(document, document.get("fixed", {}))
+        elif topic == "progress" and "search" not in document:
+            state = (document["session"], document["stage"], document.get("phase"))
+            if state == self.last and "message" not in document:
+                return
+            self.last = state
+            data = document.get("data_s")
+            text = f"session {document['session']}: {document['stage']}"
+            text += f", phase {document['phase']}" if document.get("phase") else ""
+            text += f", {data:.1f} s of data" if data is not None else ""
+            text += f": {document['message']}" if document.get("message") else ""
+            text += f" ({', '.join(document['files'])})" if document.get("files") else ""
+            print(text, file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve sessions until SIGINT/SIGTERM (or one session with --once)."""
+    settings = search_settings(args)
+    config = load_config(args.config)
+    options = WorkerOptions(
+        settings=settings,
+        profile_points=args.profile_points,
+        prior=load_parameters(args.prior) if args.prior else None,
+        vehicle=vehicle_data(args),
+        json_path=args.json,
+        plot_path=args.plot,
+        plot=not args.no_plot,
+    )
+    leave_a_core_to_the_bus()
+    worker = Worker(config.pipeline, options)
+    worker.listeners.append(_Terminal())
+    stop = threading.Event()
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        return worker.serve(once=args.once, stop=stop)
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

@@ -1,0 +1,319 @@
+"""How the model of a recorded test closes the vehicle's idle loop: with what the vehicle did.
+
+The identification's model repeats a recorded chirp test in simulation (eq. 16 compares the
+two |G_DRV|). The paper's plant runs in closed loop (Fig. 1): the vehicle's idle-speed controller
+adds its own torque to the test torque. Eq. (13) removes the controller from the FRF, but only
+for a linear plant: the free plays respond to the torque amplitude the engine actually delivers,
+and near the DMF resonance the idle loop still has gain, so the delivered torque is not the test
+torque (on an independent recording, |T_m / T_test| over 6.5-8 Hz was 0.96-0.99 in the vehicle
+and 1.09-1.12 with the product's own PI imposed on the model: a DMF resonance 0.6 Hz off).
+
+The vehicle's controller, its timing and how a stroke latches the request are the vehicle's
+own; no recording discloses them. So the model assumes none of them and drives its engine with
+what the vehicle's engine was asked for, from the recording:
+
+``recorded_request``
+    The ECU's total torque request T_ecu (role ``torque_request``), which real ECUs put on the
+    bus: the engine's strokes latch it as the vehicle's did (K T_ecu, eq. 3), whatever
+    controller, delay or filter produced it. The recorded request already holds the test
+    torque the ECU accepted.
+``measured_torque``
+    Without T_ecu on the bus: the measured mean torque of each stroke (the engine gain K then
+    cancels). This assumes the cylinder-pressure torque is the torque the engine delivered:
+    its sensor noise becomes an excitation the vehicle did not see (0.3 N*m per stroke against
+    5-10 N*m of test torque), and the measured strokes carry the vehicle's own combustion
+    variation, so the model adds none. It also assumes each stroke's torque is reported when
+    the stroke ends, as a cylinder-pressure system can first know it then.
+
+The model repeats the test crank event by crank event, not second by second. The engine
+takes its request once per stroke, so the torque the plant sees is the request *sampled at the
+strokes*; near a third of the firing frequency its alias falls on the free play's second
+harmonic, and how the two add depends on which samples the strokes took. Each model stroke
+therefore takes exactly the request the vehicle's stroke at the same crank angle took, found by
+regressing the measured mean torque on the recorded request over a few crank events of lag
+(:func:`latch`); the model's speed samples are compared with the vehicle's at the same crank
+angle, and its FRF uses the test torque the vehicle's ECU held at those crank events.
+
+An engine driven open loop drifts: a 1 % error of K alone, or the sensor's noise integrated
+over a minute, moves the idle speed by tens of rpm, which shifts the firing frequency and the
+frequency axis. The model therefore keeps its simulated speed on the *recorded* speed with a
+slow tracking controller of its own (:data:`TRACK_BANDWIDTH_HZ`, far below the chirp band).
+At the true parameters the two speeds differ only by noise and it adds almost nothing; where a
+candidate parameter set responds differently, its torque goes into the model's own measured
+mean torque x, so eq. (13) removes it from the model's |G_DRV| as it removes the vehicle's
+controller from the measured one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtid.errors import AnalysisError
+from dtid.identification.model.combustion import variation_and_noise
+from dtid.identification.samples.testdata import Series, TestData
+from dtid.simulator.angle_grid import RPM_PER_RAD_S
+from dtid.simulator.controller import IdleController
+
+RECORDED_REQUEST = "recorded_request"
+"""The model's engine is driven by the recorded torque request T_ecu."""
+MEASURED_TORQUE = "measured_torque"
+"""The model's engine is driven by the measured mean torque (no T_ecu on the bus)."""
+
+TRACK_BANDWIDTH_HZ = 0.1
+"""Crossover of the model's speed-tracking loop, Hz: a fifth of the lowest chirp frequency
+(0.5 Hz), where its loop gain is then 0.2, and ten times the inverse of a 60 s run, so that
+drift cannot build up (a random walk of 0.3 N*m per stroke leaves about 2 rpm)."""
+TRACK_INTEGRAL_HZ = 0.02
+"""Corner of the tracking loop's integral action, Hz: it takes up a constant torque error (the
+engine gain's or the loss torque's) within the settling time before each run."""
+TRACK_FILTER_HZ = 0.3
+"""Corner of the first-order low-pass on the tracking loop's speed error, Hz: the error's
+content in the chirp band (where the model's and the vehicle's speed differ by their crank
+alignment and by whatever parameter set is tried) reaches the tracking torque 0.5 times at
+0.5 Hz, 0.04 times at 7 Hz; the loop keeps 60 degrees of phase margin."""
+NOMINAL_INERTIA = 0.25
+"""Total inertia the tracking gains are sized for, kg*m^2 (a passenger car's engine, DMF and
+gearbox input; for 0.1-0.5 kg*m^2 the crossover lies at 0.05-0.25 Hz, still below the band)."""
+LATCH_LAGS = range(-2, 6)
+"""Crank events (pi/2 each) between the request a stroke takes and its mean torque's report
+that :func:`latch` tries: a report may come at the stroke's start or its end, and an ECU may
+latch a request formed some events before."""
+SAMPLES_PER_STROKE = 2
+"""Speed samples (crank events of pi/2) per stroke (pi)."""
+
+
+@dataclass(frozen=True)
+class IdleLoop:
+    """A recording on its crank-event grid, as the model repeats it (see the module notes).
+
+    Attributes
+    ----------
+    mode
+        :data:`RECORDED_REQUEST` or :data:`MEASURED_TORQUE`.
+    t
+        Crank-event times (every pi/2; lost events filled in), s, recording time.
+    speed_rpm
+        The recorded speed at each event, rpm (what the model's speed tracks).
+    test_nm
+        The test torque the ECU held at each event, N*m (the FRF's excitation z).
+    drive_nm
+        The request a stroke starting at each event takes, N*m: the recorded T_ecu, or the
+        measured torque of the stroke (then K is in it already).
+    first_stroke
+        An event at which a stroke starts (strokes start every second event from there).
+    latch_samples
+        Events from the request a stroke takes to its mean torque's report (:func:`latch`).
+    gain
+        Least-squares K of the measured torque on the latched request (1 for a drive by
+        measured torque).
+    residual_nm
+        RMS of the measured torque less K times the latched request, N*m: the sensor's noise
+        and the combustion variation when the latch is right.
+    combustion_variation, torque_noise_nm
+        The two told apart (:func:`dtid.identification.model.combustion.variation_and_noise`):
+        relative variation of each stroke's delivered torque, 1, and the torque sensor's noise, N*m;
+        NaN for a drive by measured torque.
+    """
+
+    mode: str
+    t: np.ndarray
+    speed_rpm: np.ndarray
+    test_nm: np.ndarray
+    drive_nm: np.ndarray
+    first_stroke: int
+    latch_samples: int = 0
+    gain: float = 1.0
+    residual_nm: float = 0.0
+    combustion_variation: float = float("nan")
+    torque_noise_nm: float = float("nan")
+
+    @property
+    def by_request(self) -> bool:
+        """Whether the drive is the recorded T_ecu (else the measured torque, which already
+        carries the vehicle's combustion variation and its engine gain: the model then adds no
+        variation and takes K = 1)."""
+        return self.mode == RECORDED_REQUEST
+
+    @property
+    def speed_mean_rpm(self) -> float:
+        """Mean recorded speed, rpm."""
+        return float(np.mean(self.speed_rpm))
+
+    def controller(self) -> IdleController:
+        """The model's speed-tracking controller: the stroke takes the request as it stands at
+        its start (the drive's values are already latched as the vehicle's ECU latched them)."""
+        kp = NOMINAL_INERTIA * 2 * math.pi * TRACK_BANDWIDTH_HZ / RPM_PER_RAD_S
+        return IdleController(
+            setpoint_rpm=self.speed_mean_rpm,
+            kp_nm_per_rpm=kp,
+            ki_nm_per_rpm_s=kp * 2 * math.pi * TRACK_INTEGRAL_HZ,
+            request_min_nm=-1e3,
+            request_max_nm=1e3,
+            latch_samples=0,
+            error_tau_s=1 / (2 * math.pi * TRACK_FILTER_HZ),
+        )
+
+    def event(self, t_s: float) -> int:
+        """The crank event nearest to a recording time."""
+        i = int(np.searchsorted(self.t, t_s))
+        if i > 0 and (i == len(self.t) or t_s - self.t[i - 1] <= self.t[i] - t_s):
+            i -= 1
+        return i
+
+    def start_event(self, wanted_s: float) -> int:
+        """The last event at which a stroke starts at or before ``wanted_s`` (the first such
+        event if none)."""
+        e = self.event(wanted_s)
+        e -= (e - self.first_stroke) % SAMPLES_PER_STROKE
+        return max(e, self.first_stroke % SAMPLES_PER_STROKE)
+
+    def reference(self, start: int) -> np.ndarray:
+        """The model's reference speed from a start event: the recorded speed at every event
+        after it, rpm."""
+        first = start + 1
+        return self.speed_rpm[first:] if first < len(self.t) else self.speed_rpm[-1:]
+
+    def model_event(self, event: int, start: int) -> int:
+        """The model's speed sample (row of its output) at a recorded crank event, for a
+        replay from ``start``."""
+        return event - start - 1
+
+    def drive(self, start: int) -> np.ndarray:
+        """The request of each stroke from a start event on, N*m."""
+        return self.drive_nm[start::SAMPLES_PER_STROKE]
+
+    def as_dict(self) -> dict[str, object]:
+        """The JSON entry ``idle_loop`` of a recording."""
+        controller = self.controller()
+        return {
+            "mode": self.mode,
+            "closed_by": (
+                "the recorded torque request T_ecu drives the model's engine stroke by stroke; "
+                "the vehicle's idle controller, its delays and its latch are in it"
+                if self.by_request
+                else "no torque request on the bus: the measured mean torque drives the model's "
+                "engine stroke by stroke (its sensor noise counts as excitation; the model adds "
+                "no combustion variation; K does not enter)"
+            ),
+            "latch_events": self.latch_samples,
+            "latch_gain": self.gain,
+            "latch_residual_nm": self.residual_nm,
+            "combustion_variation": _finite(self.combustion_variation),
+            "torque_noise_nm": _finite(self.torque_noise_nm),
+            "tracking_bandwidth_hz": TRACK_BANDWIDTH_HZ,
+            "tracking_kp_nm_per_rpm": controller.kp_nm_per_rpm,
+            "tracking_ki_nm_per_rpm_s": controller.ki_nm_per_rpm_s,
+        }
+
+
+def idle_loop(data: TestData) -> IdleLoop:
+    """The recording on its crank-event grid, with the drive of its model: by its torque
+    request if it has one, else by its measured mean torque (see the module notes).
+
+    Raises
+    ------
+    AnalysisError
+        If the recording has too few speed or torque samples for a crank-event grid.
+    """
+    if len(data.speed) < 8 or len(data.mean_torque) < 4:
+        raise AnalysisError("too few speed or mean-torque samples to repeat the test in the model")
+    t, speed = _event_grid(data.speed)
+    test = _held(data.test_torque, t)
+    strokes = _nearest(t, data.mean_torque.t)
+    if data.torque_request is not None and len(data.torque_request) > 1:
+        request = _per_event(data.torque_request, t)
+        lag, gain, residual = latch(request, strokes, data.mean_torque.value)
+        at = strokes - lag
+        ok = (at >= 0) & (at < len(request))
+        variation, noise = variation_and_noise(gain * request[at[ok]], data.mean_torque.value[ok])
+        first = int(strokes[0]) - lag
+        return IdleLoop(
+            RECORDED_REQUEST, t, speed, test, request, first, lag, gain, residual, variation, noise
+        )
+    # a stroke's mean torque is known, and reported, when the stroke ends: the stroke started
+    # SAMPLES_PER_STROKE events before its report
+    measured = _per_event(data.mean_torque, t)
+    starting = np.append(measured[SAMPLES_PER_STROKE:], np.full(SAMPLES_PER_STROKE, measured[-1]))
+    first = int(strokes[0]) % SAMPLES_PER_STROKE
+    return IdleLoop(MEASURED_TORQUE, t, speed, test, starting, first, SAMPLES_PER_STROKE)
+
+
+def latch(request: np.ndarray, strokes: np.ndarray, torque: np.ndarray) -> tuple[int, float, float]:
+    """Which request each stroke took: the lag, in crank events, from the request to the
+    stroke's mean-torque report that explains the measured torque best (eq. 3: T_m = K T_ecu).
+
+    Parameters
+    ----------
+    request
+        T_ecu at each crank event, N*m.
+    strokes
+        The crank event of each mean-torque report.
+    torque
+        The reported mean torques, N*m.
+
+    Returns
+    -------
+    tuple
+        The lag (events, from :data:`LATCH_LAGS`), the least-squares K at it and the RMS
+        residual, N*m.
+    """
+    best = (0, 1.0, math.inf)
+    for lag in LATCH_LAGS:
+        at = strokes - lag
+        ok = (at >= 0) & (at < len(request))
+        x, y = request[at[ok]], torque[ok]
+        if len(x) < 8 or not np.dot(x, x) > 0:
+            continue
+        gain = float(np.dot(x, y) / np.dot(x, x))
+        residual = float(np.sqrt(np.mean((y - gain * x) ** 2)))
+        if residual < best[2]:
+            best = (lag, gain, residual)
+    return best
+
+
+def _finite(value: float) -> float | None:
+    """A JSON number, or None for NaN."""
+    return value if np.isfinite(value) else None
+
+
+def _event_grid(speed: Series) -> tuple[np.ndarray, np.ndarray]:
+    """The speed's crank events, lost ones filled in (times evenly across a gap, speed
+    interpolated linearly): times, s, and speeds, rpm."""
+    t, value = speed.t, speed.value
+    keep = np.concatenate(([True], np.diff(t) > 0))
+    t, value = t[keep], value[keep]
+    interval = float(np.median(np.diff(t)))
+    missing = np.maximum(np.rint(np.diff(t) / interval).astype(np.int64) - 1, 0)
+    if not missing.any():
+        return t, value
+    counts = np.concatenate(([0], np.cumsum(missing + 1)))
+    grid = np.interp(np.arange(counts[-1] + 1), counts, t)
+    return grid, np.interp(grid, t, value)
+
+
+def _nearest(grid: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Index of the grid time nearest to each time."""
+    i = np.clip(np.searchsorted(grid, times), 1, len(grid) - 1)
+    return np.where(times - grid[i - 1] <= grid[i] - times, i - 1, i)
+
+
+def _per_event(series: Series, grid: np.ndarray) -> np.ndarray:
+    """A crank-synchronous signal on the event grid: each sample at its nearest event, events
+    without one holding the value before (the first sample before it)."""
+    index = _nearest(grid, series.t)
+    out = np.full(len(grid), np.nan)
+    out[index] = series.value
+    filled = np.where(np.isfinite(out), np.arange(len(grid)), 0)
+    np.maximum.accumulate(filled, out=filled)
+    out = out[filled]
+    out[~np.isfinite(out)] = series.value[0]
+    return out
+
+
+def _held(series: Series, grid: np.ndarray) -> np.ndarray:
+    """The last value received at or before each grid time (zero before the first)."""
+    index = np.searchsorted(series.t, grid, side="right") - 1
+    return np.where(index >= 0, series.value[np.clip(index, 0, None)], 0.0)

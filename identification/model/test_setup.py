@@ -1,0 +1,150 @@
+"""From recordings to what the identification needs: runs, FRFs, K, T_loss and the idle speed."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtid.errors import AnalysisError
+from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
+from dtid.identification.frf.runs import ChirpRun, find_runs
+from dtid.identification.model.combustion import stroke_variation
+from dtid.identification.model.idle_loop import IdleLoop, idle_loop
+from dtid.identification.model.response import ModelTest
+from dtid.identification.samples.testdata import Series, TestData
+from dtid.simulator.vehicle_data import VehicleData
+
+MAX_WEIGHT_SAMPLES = 4.0
+"""In the set-point's time mean a speed sample weighs at most this many median intervals."""
+IDLE_MARGIN_S = 1.0
+"""Idle samples closer than this to a chirp (or the recording's start) are not idle, s."""
+
+
+@dataclass(frozen=True)
+class MeasuredTest:
+    """One recording's chirp runs with their FRFs, and what the model must repeat of it.
+
+    Attributes
+    ----------
+    name
+        The recording (for reports).
+    data
+        Its signals.
+    estimates
+        FRF of every chirp run that gives one, in time order.
+    setpoint_rpm
+        The idle set-point, rpm: the time-weighted mean of the filtered speed from the
+        recording's first second to its end. An integrating idle controller makes that mean its
+        set-point, chirps included (0.01 rpm on a simulated 192 s test). The recording's model
+        does not use it: it follows the recorded speed (:mod:`dtid.identification.model.idle_loop`).
+    idle_torque_nm
+        Mean measured torque at idle outside the chirps, N*m: the loss torque T_loss.
+    combustion_variation
+        Relative standard deviation of each stroke's delivered torque, the cycle-to-cycle
+        variation the model engine repeats: told apart from the torque sensor's noise where the
+        recording holds the torque request (:func:`dtid.identification.model.combustion.
+        variation_and_noise`); otherwise the idle scatter, sensor noise included (the model,
+        then driven by the measured torque, adds none).
+    loop
+        The recording on its crank-event grid, as the model drives its engine
+        (:mod:`dtid.identification.model.idle_loop`).
+    """
+
+    name: str
+    data: TestData
+    estimates: tuple[FrfEstimate, ...]
+    setpoint_rpm: float
+    idle_torque_nm: float
+    combustion_variation: float
+    loop: IdleLoop = dataclasses.field(repr=False)
+    unusable: tuple[tuple[ChirpRun, str], ...] = ()
+    """Chirp runs that cannot give an FRF (lost frames, too short), each with the reason."""
+    vehicle: VehicleData = dataclasses.field(default_factory=VehicleData)
+    """What the model knows of the vehicle besides its drivetrain: crank train and speed sensor
+    (the reference's unless given: :mod:`dtid.simulator.vehicle_data`)."""
+
+    @classmethod
+    def from_data(
+        cls,
+        name: str,
+        data: TestData,
+        resolution_hz: float,
+        vehicle: VehicleData | None = None,
+    ) -> MeasuredTest:
+        """Find the runs, estimate their FRFs and the idle operating point.
+
+        ``vehicle`` is what the model knows of the vehicle besides its drivetrain (the
+        reference engine and eq. (9)'s speed sensor by default).
+
+        A run that cannot give an FRF is kept in ``unusable`` with the reason:
+        :func:`dtid.identification.search.identify.split_runs` leaves it out of the validation, or
+        refuses if it was to identify. No run with an FRF at all is an error.
+        """
+        runs = find_runs(data.test_torque)
+        if not runs:
+            raise AnalysisError(f"{name}: no chirp in the test torque")
+        estimates, unusable = [], []
+        for run in runs:
+            try:
+                estimates.append(estimate_frf(data, run, resolution_hz))
+            except AnalysisError as error:
+                unusable.append((run, str(error)))
+        if not estimates:
+            raise AnalysisError(f"{name}: {unusable[0][1]}")
+        torque = data.mean_torque.value[_idle(data.mean_torque.t, runs)]
+        if len(torque) < 10:
+            raise AnalysisError(
+                f"{name}: fewer than 10 mean-torque samples at idle outside the chirps; the loss "
+                "torque T_loss cannot be measured (record a few seconds of idle before the test)"
+            )
+        loop = idle_loop(data)
+        separated = loop.by_request and np.isfinite(loop.combustion_variation)
+        return cls(
+            name,
+            data,
+            tuple(estimates),
+            _time_mean(data.speed),
+            float(np.mean(torque)),
+            loop.combustion_variation if separated else stroke_variation(torque),
+            loop,
+            tuple(unusable),
+            vehicle or VehicleData(),
+        )
+
+    def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
+        """The model's repetition of this recording, estimating the runs given by index
+        (:class:`dtid.identification.model.response.ModelTest`)."""
+        extra = {} if realizations is None else {"realizations": realizations}
+        return ModelTest(
+            requests=self.data.test_torque,
+            estimates=tuple(self.estimates[i] for i in indices),
+            setpoint_rpm=self.setpoint_rpm,
+            loop=self.loop,
+            vehicle=self.vehicle,
+            combustion_variation=self.combustion_variation,
+            **extra,
+        )
+
+
+def _time_mean(speed: Series) -> float:
+    """Mean of the speed over time from the recording's first second on, each sample weighted by
+    the time since the one before (as the controller's integral weights it; a gap of lost
+    frames no more than a few samples' worth), rpm."""
+    keep = speed.t > speed.t[0] + IDLE_MARGIN_S
+    t, value = speed.t[keep], speed.value[keep]
+    if len(t) < 2:
+        return float(np.mean(speed.value))
+    weight = np.diff(t)
+    weight = np.minimum(weight, MAX_WEIGHT_SAMPLES * np.median(weight))
+    return float(np.sum(value[1:] * weight) / np.sum(weight))
+
+
+def _idle(t: np.ndarray, runs: Sequence[ChirpRun]) -> np.ndarray:
+    """Samples at idle: after the recording's first second and away from every chirp."""
+    idle = t > t[0] + IDLE_MARGIN_S
+    for run in runs:
+        idle &= (t < run.start_s - IDLE_MARGIN_S) | (t > run.end_s + IDLE_MARGIN_S)
+    return idle

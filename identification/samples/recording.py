@@ -1,0 +1,228 @@
+"""Read a CAN recording into the time series the FRF pipeline works on."""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dtid.acquisition.logfile import read_log
+from dtid.dbc.interface import RoleSeries, VehicleInterface
+from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
+from dtid.errors import AnalysisError
+from dtid.identification.samples.late_frames import retime_late_bursts
+from dtid.identification.samples.testdata import Series, TestData
+
+logger = logging.getLogger(__name__)
+
+_pauses_reported: dict[Path, int] = {}
+"""Request pauses already reported per recording (a live session's is read again and again)."""
+TIME_DECIMALS = 6
+TIME_RESOLUTION_S = 10.0**-TIME_DECIMALS
+"""Resolution of recording times, s: what ASC and candump logs store (BLF stores ns)."""
+
+
+@dataclass(frozen=True)
+class Recording:
+    """A decoded CAN recording.
+
+    Attributes
+    ----------
+    path
+        The file.
+    n_frames
+        Frames in the file.
+    duration_s
+        Time from its first to its last frame, s.
+    roles
+        Decoded series per mapped role, times in s from the recording's first frame.
+    missing_roles
+        Required roles the signal map does not define.
+    request_timeout_s
+        How long the ECU applies a test-torque request when no valid one follows, s (the
+        signal map's ``timeout_s``).
+    """
+
+    path: Path
+    n_frames: int
+    duration_s: float
+    roles: dict[str, RoleSeries]
+    missing_roles: tuple[str, ...]
+    request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
+
+    def series(self, role: str) -> Series:
+        """The role's samples as a :class:`dtid.identification.samples.testdata.Series`."""
+        decoded = self.roles[role]
+        return Series(decoded.timestamps, decoded.values)
+
+    def test_data(self) -> TestData:
+        """The signals of the FRF pipeline; raises AnalysisError naming what is missing."""
+        missing = [
+            role
+            for role in ("speed", "mean_torque", "test_torque")
+            if role not in self.roles or len(self.roles[role].timestamps) == 0
+        ]
+        if missing:
+            raise AnalysisError(
+                f"{self.path}: no {', '.join(missing)} frames found (check that the signal map "
+                "names the messages this recording carries; `dtid inspect` lists what it holds)"
+            )
+        request = self.roles.get("torque_request")
+        return TestData(
+            speed=self._crank_series("speed"),
+            mean_torque=self._crank_series("mean_torque"),
+            test_torque=self._applied_test_torque(),
+            torque_request=self._crank_series("torque_request")
+            if request is not None and len(request.timestamps) > 1
+            else None,
+        )
+
+    def _applied_test_torque(self) -> Series:
+        """The test torque the ECU applied, from the requests the recording holds, N*m.
+
+        The ECU applies a request until the next one, but zero once ``request_timeout_s`` has
+        passed without one (the tool stalled, frames were lost) and while the request's enable
+        signal, where mapped, is 0. Holding the last request over such a pause, as the plain
+        series would, makes the FRF's excitation and the model's replay differ from what drove
+        the engine.
+        """
+        decoded = self.roles["test_torque"]
+        t, value = decoded.timestamps, decoded.values.astype(float)
+        enable = decoded.extra.get("enable")
+        if enable is not None:
+            value = np.where(enable == 0, 0.0, value)
+        timeout = self.request_timeout_s
+        pauses = np.flatnonzero(np.diff(t) > timeout)
+        if len(pauses) > _pauses_reported.get(self.path, 0):
+            _pauses_reported[self.path] = len(pauses)  # the worker re-reads a growing session
+            logger.warning(
+                "%s: %d pause(s) in the test-torque requests longer than the ECU's timeout "
+                "(%.3f s; the longest %.3f s); the test torque is taken as zero after the "
+                "timeout, as the ECU applied it",
+                self.path,
+                len(pauses),
+                timeout,
+                float(np.max(np.diff(t)[pauses])),
+            )
+        ends = np.append(pauses, len(t) - 1) if len(t) else pauses
+        return Series(np.insert(t, ends + 1, t[ends] + timeout), np.insert(value, ends + 1, 0.0))
+
+    def _crank_series(self, role: str) -> Series:
+        """A crank-synchronous role's samples: a frame repeating its predecessor's counter (a
+        duplicate) dropped, where the map names the counter, and samples that came late in a
+        burst re-timed (:func:`dtid.identification.samples.late_frames.retime_late_bursts`)."""
+        decoded = self.roles[role]
+        t, value = decoded.timestamps, decoded.values
+        counter = decoded.extra.get("counter")
+        if counter is not None and len(counter) > 1:
+            keep = np.concatenate(([True], np.diff(counter) != 0))
+            t, value = t[keep], value[keep]
+        retiming = retime_late_bursts(t)
+        if retiming.n_moved:
+            logger.warning(
+                "%s: %d '%s' samples arrived late in bursts (up to %.3f s); re-timed to their "
+                "crank slots",
+                self.path,
+                retiming.n_moved,
+                role,
+                retiming.max_shift_s,
+            )
+        return Series(retiming.times, value)
+
+
+def _in_time_order(series: RoleSeries, start: float, path: Path) -> RoleSeries:
+    """The series with times from the recording's start, sorted (stably) if frames came late."""
+    t = np.round(series.timestamps - start, TIME_DECIMALS)
+    order = np.argsort(t, kind="stable")
+    if np.any(np.diff(t) < 0):
+        logger.warning(
+            "%s: %d frames of role '%s' arrive out of time order; sorted by timestamp",
+            path,
+            int(np.sum(np.diff(t) < 0)),
+            series.role,
+        )
+    return RoleSeries(
+        role=series.role,
+        timestamps=t[order],
+        values=series.values[order],
+        extra={key: value[order] for key, value in series.extra.items()},
+        n_bad=series.n_bad,
+    )
+
+
+def recording_from_series(
+    path: Path,
+    decoded: Mapping[str, RoleSeries],
+    start_s: float,
+    n_frames: int,
+    end_s: float,
+    missing_roles: tuple[str, ...],
+    request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S,
+) -> Recording:
+    """A recording from decoded series with absolute times: the one constructor of both paths.
+
+    :func:`load_recording` (a log file) and the worker (the daemon's samples events) both build
+    their recordings here, so the same frames give the same series: times made relative to
+    ``start_s`` (the log's first frame), rounded to :data:`TIME_RESOLUTION_S` and sorted stably.
+
+    Parameters
+    ----------
+    path
+        The log file (for names and messages).
+    decoded
+        Series per mapped role, absolute timestamps, in receive order.
+    start_s
+        Timestamp of the log's first frame, s.
+    n_frames
+        Frames recorded.
+    end_s
+        Timestamp of the last frame, s.
+    missing_roles
+        Required roles the signal map does not define.
+    request_timeout_s
+        The ECU's request timeout, s (the signal map's ``timeout_s`` of the test torque).
+    """
+    roles = {role: _in_time_order(series, start_s, path) for role, series in decoded.items()}
+    return Recording(
+        path=path,
+        n_frames=n_frames,
+        duration_s=end_s - start_s,
+        roles=roles,
+        missing_roles=missing_roles,
+        request_timeout_s=request_timeout_s,
+    )
+
+
+def request_timeout(interface: VehicleInterface) -> float:
+    """The ECU's test-torque request timeout the interface's signal map gives, s."""
+    spec = interface.signal_map.roles.get("test_torque")
+    return DEFAULT_REQUEST_TIMEOUT_S if spec is None else spec.timeout_s
+
+
+def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) -> Recording:
+    """Read and decode a CAN recording (.blf, .asc or candump .log).
+
+    Times are made relative to the recording's first frame and rounded to
+    :data:`TIME_RESOLUTION_S`, so every format gives the same series whatever absolute start time
+    and precision it stores.
+
+    Raises
+    ------
+    RecordingError
+        If the file cannot be read.
+    """
+    path = Path(path)
+    frames = read_log(path)
+    return recording_from_series(
+        path,
+        interface.decode(frames),
+        frames[0].timestamp,
+        len(frames),
+        frames[-1].timestamp,
+        interface.missing_roles(),
+        request_timeout(interface),
+    )

@@ -1,0 +1,1 @@
+"""The search: eq. (17)'s objective, the parameter scaling and the global then local search."""

@@ -1,0 +1,1 @@
+"""The worker service: the daemon's event stream in, FRFs and identifications out."""

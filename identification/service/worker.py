@@ -1,0 +1,577 @@
+"""The identification worker (``dtid worker``): the daemon's event stream in, FRFs and results out.
+
+The worker connects to the daemon's PUB (``[pipeline] blocks``) first, then asks its REP
+(``[pipeline] replay``) for the kept events from the first it lacks, and merges both by ``seq``
+(:class:`dtid.identification.service.live.EventLog`): duplicates are dropped, a gap or a quiet
+stream sends a new request, and a new session id starts a new session. So a worker started late or
+restarted mid-test computes what one that saw the whole test live computes.
+
+It binds its own PUB (``[pipeline] results``) and publishes, as two frames ``[topic, JSON]``:
+
+``progress``
+    ``session``, ``stage`` (``acquiring``, ``identifying``, ``identified``, ``validated``,
+    ``done``, ``aborted``, ``error``), ``phase`` (the daemon's), ``data_s`` (seconds of data
+    received), ``chirps`` (the completed chirps' amplitudes), and per stage ``search`` (the
+    identification's stage, step, steps and best objective), ``parameters``, ``seconds_after_chirp``
+    (wall time from the end of the last identification chirp to the identified parameters),
+    ``message``.
+``frf``
+    One entry per chirp when its phase ends and its data have arrived, with the schema of a
+    ``dtid frf`` run entry (``recording``, ``amplitude_nm``, ``frequency_hz``, ``drv_db``,
+    ``eng_db``, ``coherence``, ...).
+``result``
+    The JSON document of ``dtid identify --json``, once the validation chirp is complete (at once
+    without one); also written to a file and plotted as Fig. 6.
+
+The identification starts when the identification chirps are complete (and
+:data:`dtid.identification.pipeline.HOLD_OUT_S` of data past them arrived), in a thread, while the
+validation chirp is recorded. Transport: ipc by default; a ``tcp://`` endpoint without a host
+means 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+import zmq
+
+from dtid.acquisition.config import PipelineConfig
+from dtid.acquisition.stream import KINDS
+from dtid.dbc.loader import load_interface
+from dtid.errors import ConfigError, DtidError
+from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
+from dtid.identification.pipeline import IdentificationReport, identify_runs
+from dtid.identification.search.identify import SearchSettings
+from dtid.identification.service.live import EventLog, LiveSession
+from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.vehicle_data import VehicleData
+
+logger = logging.getLogger(__name__)
+
+TOPICS = ("progress", "frf", "result")
+"""Topics of the worker's results PUB."""
+REPLAY_TIMEOUT_S = 2.0
+"""A replay request without answer for this long is given up and sent again, s (wall)."""
+GAP_RETRY_S = 0.2
+"""Shortest time between two requests for the same gap, s (wall)."""
+QUIET_S = 1.0
+"""A session under way from which nothing arrived for this long is asked for its tail, s."""
+PROGRESS_PERIOD_S = 1.0
+"""Longest time between two progress messages while data arrive, s (wall)."""
+POLL_MS = 100
+"""Longest wait for a message before the loop looks at its sessions again, ms."""
+DRAIN = 2000
+"""Most messages taken from the stream before the sessions are advanced."""
+
+
+def leave_a_core_to_the_bus() -> int:
+    """Let the simulator's threads use one core less than numba would, unless the user set
+    ``NUMBA_NUM_THREADS``: the daemon on the same machine must never wait for the search.
+
+    Returns
+    -------
+    int
+        The threads the simulator now uses.
+    """
+    import numba
+
+    if "NUMBA_NUM_THREADS" not in os.environ:
+        numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS - 1))
+    return numba.get_num_threads()
+
+
+def endpoint(address: str, bind: bool = False) -> str:
+    """A ZeroMQ endpoint of the configuration, ready to use.
+
+    ``ipc://`` endpoints get their folder made (when binding); a ``tcp://`` endpoint without a
+    host (``tcp://:5555``) means loopback, 127.0.0.1, and so does a wildcard host (``*``,
+    ``0.0.0.0``) to connect to; other transports are refused.
+    """
+    parts = urlsplit(address)
+    if parts.scheme == "ipc":
+        if bind:
+            path = Path(address[len("ipc://") :])
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as error:
+                raise ConfigError(f"cannot make the folder of {address}: {error}") from None
+        return address
+    if parts.scheme == "tcp":
+        host, sep, port = parts.netloc.rpartition(":")
+        if not sep or not port.isdigit():
+            raise ConfigError(f"endpoint {address!r}: expected tcp://HOST:PORT")
+        if not host or (not bind and host in ("*", "0.0.0.0")):
+            host = "127.0.0.1"
+        return f"tcp://{host}:{port}"
+    raise ConfigError(f"endpoint {address!r}: expected ipc://PATH or tcp://HOST:PORT")
+
+
+@dataclass(frozen=True)
+class WorkerOptions:
+    """What the worker computes and where it writes.
+
+    Attributes
+    ----------
+    settings
+        Search budget and seed (``dtid identify``'s defaults).
+    profile_points
+        Grid points per profile; 0 skips the profiles (``dtid identify``'s default: 5).
+    prior
+        Parameter set the bounds centre on; the reference vehicle by default.
+    vehicle
+        The vehicle's data besides its drivetrain (crank train); the reference engine's by
+        default.
+    json_path, plot_path
+        Result file and Fig. 6 plot; None: ``identification.json`` and ``identification.png``
+        beside the session's log.
+    plot
+        Draw the plot at all.
+    resolution_hz
+        Welch resolution of the FRFs.
+    """
+
+    settings: SearchSettings = field(default_factory=SearchSettings)
+    profile_points: int = 5
+    prior: DrivetrainParameters | None = None
+    vehicle: VehicleData = field(default_factory=VehicleData)
+    json_path: Path | None = None
+    plot_path: Path | None = None
+    plot: bool = True
+    resolution_hz: float = DEFAULT_RESOLUTION_HZ
+
+
+@dataclass
+class _Session:
+    """A session's events and the worker's state of its analysis."""
+
+    id: str
+    log: EventLog
+    live: LiveSession | None = None
+    thread: threading.Thread | None = None
+    outcome: list[Any] = field(default_factory=list)
+    report: IdentificationReport | None = None
+    identification_failed: bool = False
+    result: dict[str, Any] | None = None
+    chirp_end_wall: float | None = None
+    last_event_wall: float = field(default_factory=time.monotonic)
+    last_progress_wall: float = 0.0
+    finished: bool = False
+    status: str = ""
+
+
+class Worker:
+    """The worker of one daemon: events in, progress, FRFs and results out.
+
+    Parameters
+    ----------
+    pipeline
+        The endpoints (``[pipeline]`` of the configuration).
+    options
+        What to compute and where to write.
+    context
+        ZeroMQ context (a new one by default).
+    """
+
+    def __init__(
+        self,
+        pipeline: PipelineConfig,
+        options: WorkerOptions | None = None,
+        context: zmq.Context | None = None,
+    ) -> None:
+        self.pipeline = pipeline
+        self.options = options or WorkerOptions()
+        self.context = context or zmq.Context.instance()
+        self.prior = self.options.prior or reference_parameters()
+        self.sessions: dict[str, _Session] = {}
+        self.current: _Session | None = None
+        self.finished: dict[str, str] = {}
+        """Status of each session served: ``completed``, ``aborted`` or ``error``."""
+        self._outbox: queue.SimpleQueue[tuple[str, dict[str, Any]]] = queue.SimpleQueue()
+        self._req: zmq.Socket | None = None
+        self._req_sent = 0.0
+        self._req_waiting = False
+        self._replayed = False
+        self._pub: zmq.Socket | None = None
+        self._poller = zmq.Poller()
+        self.listeners: list[Callable[[str, dict[str, Any]], None]] = []
+        """Called with each message sent (for the command's terminal output and for tests)."""
+
+    # --- the loop -----------------------------------------------------------------------------
+
+    def serve(self, once: bool = False, stop: threading.Event | None = None) -> int:
+        """Serve sessions until ``stop`` is set (or, with ``once``, until one session ends).
+
+        Returns
+        -------
+        int
+            0, or 2 when ``once`` and the session's analysis failed.
+        """
+        stop = stop or threading.Event()
+        sub = self.context.socket(zmq.SUB)
+        sub.setsockopt(zmq.RCVHWM, 0)  # never drop: the IO thread buffers while we compute
+        sub.setsockopt(zmq.LINGER, 0)
+        sub.setsockopt(zmq.SUBSCRIBE, b"")
+        sub.connect(endpoint(self.pipeline.blocks))
+        self._pub = self.context.socket(zmq.PUB)
+        self._pub.setsockopt(zmq.LINGER, 1000)
+        self._pub.bind(endpoint(self.pipeline.results, bind=True))
+        self._poller = zmq.Poller()
+        self._poller.register(sub, zmq.POLLIN)
+        self._ask(0)
+        try:
+            while not stop.is_set():
+                ready = dict(self._poller.poll(POLL_MS))
+                for _ in range(DRAIN if ready.get(sub) else 0):
+                    if not sub.poll(0):
+                        break
+                    self._receive_frames(sub.recv_multipart(zmq.NOBLOCK))
+                if self._req is not None and ready.get(self._req):
+                    self._receive_replay(self._req.recv())
+                elif self._req_waiting and time.monotonic() - self._req_sent > REPLAY_TIMEOUT_S:
+                    logger.info("no answer from the replay %s; asking again", self._replay)
+                    self._close_req()
+                for session in list(self.sessions.values()):
+                    self._advance(session)
+                self._ask_if_needed()
+                self._flush()
+                if once and self.finished:
+                    return 2 if "error" in self.finished.values() else 0
+            return 0
+        finally:
+            self._flush()
+            self._close_req()
+            sub.close(linger=0)
+            self._pub.close()
+            self._pub = None
+
+    @property
+    def _replay(self) -> str:
+        return endpoint(self.pipeline.replay)
+
+    # --- events in ----------------------------------------------------------------------------
+
+    def _receive_frames(self, frames: list[bytes]) -> None:
+        try:
+            event = json.loads(frames[-1])
+        except ValueError:
+            logger.warning("not an event: %r", frames[-1][:80])
+            return
+        self._receive(event)
+
+    def _receive_replay(self, reply: bytes) -> None:
+        self._req_waiting = False
+        self._replayed = True
+        try:
+            events = json.loads(reply)
+        except ValueError:
+            logger.warning("replay answer is not JSON: %r", reply[:80])
+            return
+        if not isinstance(events, list):
+            logger.warning("replay answer is not a list of events: %r", reply[:80])
+            return
+        for event in events:
+            self._receive(event)
+
+    def _receive(self, event: Any) -> None:
+        if (
+            not isinstance(event, dict)
+            or event.get("kind") not in KINDS
+            or not isinstance(event.get("seq"), int)
+            or "session" not in event
+        ):
+            logger.warning("not a drivetrain-id event: %.80r", event)
+            return
+        sid = str(event["session"])
+        if sid in self.finished or (
+            sid in self.sessions and self.sessions[sid] is not self.current
+        ):
+            return  # a session served, or one a newer session superseded
+        if self.current is None or self.current.id != sid:
+            if self.current is not None and not self.current.finished:
+                self._supersede(self.current)
+            self.current = self.sessions[sid] = _Session(sid, EventLog(sid))
+        self.current.last_event_wall = time.monotonic()
+        self.current.log.add(event)
+
+    def _supersede(self, session: _Session) -> None:
+        """A new session began before this one ended: it ends here, as aborted."""
+        logger.warning("session %s superseded before its end event", session.id)
+        if session.live is not None and session.live.end is None:
+            session.live.end = {"status": "aborted", "reason": "superseded"}
+        elif session.live is None:
+            self._finish(session, "aborted")
+
+    # --- replay requests ----------------------------------------------------------------------
+
+    def _ask(self, from_seq: int) -> None:
+        """Ask the daemon's replay for its kept events from ``from_seq`` on."""
+        if self._req_waiting:
+            return
+        if self._req is None:
+            self._req = self.context.socket(zmq.REQ)
+            self._req.setsockopt(zmq.LINGER, 0)
+            self._req.connect(self._replay)
+            self._poller.register(self._req, zmq.POLLIN)
+        self._req.send(json.dumps({"from_seq": from_seq}).encode())
+        self._req_sent = time.monotonic()
+        self._req_waiting = True
+
+    def _close_req(self) -> None:
+        """Give up a request (a REQ socket cannot send again before its answer: a new one)."""
+        if self._req is not None:
+            self._poller.unregister(self._req)
+            self._req.close(linger=0)
+        self._req = None
+        self._req_waiting = False
+
+    def _ask_if_needed(self) -> None:
+        """Ask for a gap, for the tail of a quiet session, or for the past until answered."""
+        if self._req_waiting:
+            return
+        now = time.monotonic()
+        since = now - self._req_sent
+        session = self.current if self.current is not None and not self.current.finished else None
+        if session is None:
+            if not self._replayed and since > REPLAY_TIMEOUT_S:
+                self._ask(0)
+            return
+        ended = session.live is not None and session.live.end is not None
+        quiet = now - session.last_event_wall > QUIET_S and since > QUIET_S
+        if (
+            (session.log.gap and since > GAP_RETRY_S)
+            or (quiet and not ended)
+            or (not self._replayed and since > REPLAY_TIMEOUT_S)
+        ):
+            self._ask(session.log.next_seq)
+
+    # --- analysis -----------------------------------------------------------------------------
+
+    def _advance(self, session: _Session) -> None:
+        """Apply the session's new events and compute what is due."""
+        if session.finished:
+            return
+        for event in session.log.take():
+            if session.live is None:
+                if event["kind"] != "session":
+                    self._fail(session, f"session {session.id} does not begin with its start")
+                    return
+                try:
+                    interface = load_interface(
+                        (event.get("interface") or {}).get("dbc"),
+                        (event.get("interface") or {}).get("signals"),
+                    )
+                except DtidError as error:
+                    self._fail(session, str(error))
+                    return
+                session.live = LiveSession(
+                    event, interface, self.options.resolution_hz, self.options.vehicle
+                )
+                self._progress(session, "acquiring")
+                continue
+            before = session.live.phase
+            closed = session.live.identification_complete()
+            session.live.apply(event)
+            if not closed and session.live.identification_complete():
+                session.chirp_end_wall = time.monotonic()
+            if session.live.phase != before or event["kind"] == "end":
+                self._progress(session, self._state(session))
+        live = session.live
+        if live is None:
+            return
+        try:
+            self._compute(session, live)
+        except DtidError as error:
+            self._fail(session, str(error))
+            return
+        except Exception as error:  # a bug: the session fails, the worker keeps serving
+            logger.exception("session %s: internal error", session.id)
+            self._fail(session, f"internal error: {error!r}")
+            return
+        now = time.monotonic()
+        if now - session.last_progress_wall > PROGRESS_PERIOD_S and not session.finished:
+            if live.end is None or session.thread is not None:
+                self._progress(session, self._state(session))
+
+    @staticmethod
+    def _state(session: _Session) -> str:
+        """The stage a session is in between the stage changes."""
+        if session.result is not None:
+            return "validated" if session.result["nrmse"]["validation"] else "identified"
+        if session.thread is not None:
+            return "identifying"
+        return "identified" if session.report is not None else "acquiring"
+
+    def _compute(self, session: _Session, live: LiveSession) -> None:
+        due = live.frfs_due()
+        validation_due = session.report is not None and live.validation_due()
+        identification_due = (
+            session.report is None and session.thread is None and not session.identification_failed
+        ) and live.identification_due()
+        data = live.test_data() if due or validation_due or identification_due else None
+        if due:
+            live.estimate(due, data)
+            for chirp in due:
+                if chirp.frf is not None:
+                    entry = {"recording": live.name, **chirp.frf.as_dict()}
+                    self._publish("frf", entry)
+                else:
+                    self._progress(session, "error", message=chirp.failed)
+        if identification_due:
+            self._start_identification(session, live, data)
+        if session.thread is not None and not session.thread.is_alive() and session.outcome:
+            outcome = session.outcome.pop()
+            session.thread = None
+            if isinstance(outcome, BaseException):
+                session.identification_failed = True
+                self._progress(session, "error", message=str(outcome))
+            else:
+                session.report = outcome
+                after = None
+                if session.chirp_end_wall is not None:
+                    after = time.monotonic() - session.chirp_end_wall
+                self._progress(
+                    session,
+                    "identified",
+                    parameters=outcome.as_dict()["parameters"],
+                    seconds_after_chirp=after,
+                )
+            validation_due = session.report is not None and live.validation_due()
+            if validation_due:
+                data = live.test_data()
+        if session.report is not None and session.result is None:
+            if live.validation_index is None:
+                self._conclude(session, live, session.report)
+            elif validation_due:
+                report = session.report.validated(live.validation_selection(data))
+                self._conclude(session, live, report)
+            elif live.end is not None:
+                self._conclude(session, live, session.report)  # aborted before A3 was complete
+        if live.end is not None and session.thread is None and not live.frfs_due():
+            if session.result is not None:
+                self._finish(session, str(live.end.get("status", "completed")))
+            elif session.report is None and not live.identification_due():
+                reason = live.end.get("reason")
+                self._progress(
+                    session,
+                    "aborted",
+                    message="the identification chirps are not complete; no identification"
+                    + (f" (abort: {reason})" if reason else ""),
+                )
+                self._finish(session, "aborted")
+            elif session.identification_failed:
+                self._finish(session, "error")
+
+    def _start_identification(self, session: _Session, live: LiveSession, data: Any) -> None:
+        selection = live.identification_selection(data)
+        options = self.options
+
+        def progress(stage: str, step: int, steps: int, best: float) -> None:
+            # the search's thread only queues: the loop composes the message from the session
+            search = {"stage": stage, "step": step, "steps": steps, "objective": best}
+            self._outbox.put(("", {"session": session, "search": search}))
+
+        def run() -> None:
+            try:
+                report = identify_runs(
+                    selection,
+                    self.prior,
+                    settings=options.settings,
+                    profile_points=options.profile_points,
+                    progress=progress,
+                )
+            except BaseException as error:  # handed to the loop, which reports it
+                session.outcome.append(error)
+            else:
+                session.outcome.append(report)
+
+        session.thread = threading.Thread(target=run, name=f"identify-{session.id}", daemon=True)
+        self._progress(session, "identifying")
+        session.thread.start()
+
+    def _conclude(self, session: _Session, live: LiveSession, report: IdentificationReport) -> None:
+        """Publish the result, write it and plot it."""
+        from dtid.cli.commands.common import write_json
+
+        document = report.as_dict()
+        session.result = document
+        self._publish("result", document)
+        folder = live.log_path.parent
+        json_path = self.options.json_path or folder / "identification.json"
+        try:
+            write_json(json_path, document)
+            written = [str(json_path)]
+            if self.options.plot:
+                from dtid.identification.plots import plot_fit
+
+                plot_path = self.options.plot_path or folder / "identification.png"
+                plot_fit(*report.fit_curves(), plot_path)
+                written.append(str(plot_path))
+        except DtidError as error:
+            self._progress(session, "error", message=str(error))
+            return
+        stage = "validated" if document["nrmse"]["validation"] else "done"
+        self._progress(session, stage, files=written)
+
+    def _fail(self, session: _Session, message: str) -> None:
+        logger.error("session %s: %s", session.id, message)
+        self._progress(session, "error", message=message)
+        self._finish(session, "error")
+
+    def _finish(self, session: _Session, status: str) -> None:
+        session.finished = True
+        self.finished[session.id] = status
+        self.sessions.pop(session.id, None)
+        if session.live is not None:
+            self._progress(session, "done" if status == "completed" else status)
+
+    # --- results out --------------------------------------------------------------------------
+
+    def _progress(self, session: _Session, stage: str, **extra: Any) -> None:
+        live = session.live
+        message: dict[str, Any] = {"session": session.id, "stage": stage}
+        if live is not None:
+            message.update(
+                phase=live.phase,
+                data_s=live.data_s,
+                chirps=[
+                    c.amplitude_nm
+                    for c in sorted(live.chirps.values(), key=lambda c: c.index)
+                    if c.end_s is not None
+                ],
+            )
+            if live.end is not None:
+                message["end"] = {k: live.end.get(k) for k in ("status", "reason")}
+        message.update(extra)
+        session.last_progress_wall = time.monotonic()
+        self._publish("progress", message)
+
+    def _publish(self, topic: str, document: Mapping[str, Any]) -> None:
+        """Queue a message (any thread); the loop sends it."""
+        self._outbox.put((topic, dict(document)))
+
+    def _flush(self) -> None:
+        while True:
+            try:
+                topic, document = self._outbox.get_nowait()
+            except queue.Empty:
+                return
+            if not topic:  # the search's progress, from its thread
+                self._progress(document["session"], "identifying", search=document["search"])
+                continue
+            if topic == "progress":
+                logger.info("progress %s", document)
+            if self._pub is not None:
+                body = json.dumps(document, separators=(",", ":"), allow_nan=False)
+                self._pub.send_multipart([topic.encode(), body.encode()])
+            for callback in self.listeners:
+                callback(topic, document)

@@ -1,0 +1,1 @@
+"""Uncertainty of the identified parameters: sensitivities and likelihood profiles."""

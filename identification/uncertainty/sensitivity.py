@@ -1,0 +1,92 @@
+"""The model's sensitivities at one parameter set: the Jacobian of eq. (17)'s residuals.
+
+Eq. (17) is a sum of per-run NRMSEs of |G_DRV| in dB, so near an optimum it behaves like weighted
+least squares on the dB residuals, each run's bins weighted by the inverse of its measured
+spread (the NRMSE's denominator). Its Jacobian gives the directions a derivative-free search
+finds slowly: the narrow, curved valleys where one parameter's change is undone by others (a
+mass ratio 1 % off the optimum raises eq. (17) by a quarter unless the inertias and stiffnesses
+move with it), and the shallow ones of the dampings and the friction.
+
+The model is a Monte Carlo estimate (:mod:`dtid.identification.model.response`) whose curves jitter
+by about 0.014 dB RMS between parameter sets 1e-6 apart (the accuracy trial's truth 4), so a
+derivative from a tiny step is that jitter. Each parameter's central difference is instead
+sized, after a first measurement with :data:`FIRST_STEP`, to change the curves by
+:data:`SENSITIVITY_DB`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:  # the search (dtid.identification.search.identify) uses this module
+    from dtid.identification.search.identify import Objective
+
+SENSITIVITY_DB = 0.1
+"""RMS change of the model's |G_DRV| (dB) each parameter's finite difference is sized for: seven
+times the jitter, and still linear (on truth 4 a step three times longer changed the steepest
+parameter's curves three times as much)."""
+FIRST_STEP = 0.01
+"""Normalised finite-difference step that measures each parameter's sensitivity first."""
+STEP_RANGE = (0.002, 0.15)
+"""Least and largest normalised step (the dampings and the friction need the largest)."""
+
+
+def jacobian(objective: Objective, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Jacobian of the weighted residuals at one parameter set, by sized central differences.
+
+    Parameters
+    ----------
+    objective
+        Eq. (17).
+    unit
+        (n_free,) normalised free values; steps are clipped to the box.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        The Jacobian (bins, n_free), per normalised unit, and the residuals at ``unit`` (bins,),
+        as :meth:`dtid.identification.search.identify.Objective.residuals`; NaN where the model
+        could not idle at some step.
+    """
+    n_free = len(unit)
+    spreads = np.concatenate(
+        [
+            np.full(len(data), np.linalg.norm(data - data.mean()))
+            for measured in objective.measured_db
+            for data in measured
+        ]
+    )
+    steps = np.full(n_free, FIRST_STEP)
+    for _ in range(2):  # measure the sensitivities, then again with steps sized by them
+        up = np.clip(unit + np.diag(steps), 0.0, 1.0)
+        down = np.clip(unit - np.diag(steps), 0.0, 1.0)
+        rows = objective.residuals(np.vstack([up, down, unit[None]]))
+        result = (rows[:n_free] - rows[n_free : 2 * n_free]).T / np.diag(up - down)
+        rms_db = np.sqrt(np.mean((result * spreads[:, None]) ** 2, axis=0))
+        steps = np.clip(SENSITIVITY_DB / np.maximum(rms_db, 1e-9), *STEP_RANGE)
+    return result, rows[-1]
+
+
+def compensation(objective: Objective, unit: np.ndarray) -> np.ndarray:
+    """How the other free parameters move, to first order, when one is held off ``unit``.
+
+    The Gauss-Newton least-squares solution: the others' change that best undoes, in the
+    weighted residuals, one parameter's change.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n_free, n_free): row k is the change of every free parameter per unit change of
+        parameter k, normalised units, with 1 at k; the identity where the model could not idle.
+    """
+    n_free = len(unit)
+    jac = jacobian(objective, unit)[0]
+    moves = np.eye(n_free)
+    if not np.isfinite(jac).all():
+        return moves
+    for k in range(n_free):
+        others = [i for i in range(n_free) if i != k]
+        moves[k, others] = np.linalg.lstsq(jac[:, others], -jac[:, k], rcond=None)[0]
+    return moves
