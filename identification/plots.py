@@ -18,16 +18,20 @@ COHERENCE_FLOOR = 0.7
 """Bins below this coherence are drawn faint: noise makes up a third or more of the response."""
 
 
-def _save(figure: object, path: Path) -> Path:
-    """Write a figure (format by suffix) and close it; a failure names the file."""
-    import matplotlib.pyplot as plt
+def _figure(**options: object) -> object:
+    """A matplotlib figure of its own, outside pyplot: no backend is chosen or changed, so a
+    notebook's or an application's stays as it was, and no window opens."""
+    from matplotlib.figure import Figure
 
+    return Figure(**options)
+
+
+def _save(figure: object, path: Path) -> Path:
+    """Write a figure (format by suffix); a failure names the file."""
     try:
         figure.savefig(path, dpi=110)  # type: ignore[attr-defined]
     except (OSError, ValueError) as error:
         raise RecordingError(f"cannot write the plot {path}: {error}") from None
-    finally:
-        plt.close(figure)  # type: ignore[arg-type]
     return path
 
 
@@ -48,17 +52,13 @@ def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = ""
     pathlib.Path
         The file written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib import colormaps
 
     path = Path(path)
-    figure, (ax_drv, ax_eng, ax_coh) = plt.subplots(
-        3, 1, sharex=True, figsize=(8, 8), height_ratios=(3, 1.2, 1.2)
-    )
+    figure = _figure(figsize=(8, 8))
+    ax_drv, ax_eng, ax_coh = figure.subplots(3, 1, sharex=True, height_ratios=(3, 1.2, 1.2))
     amplitudes = sorted({round(e.run.amplitude_nm, 2) for e in estimates})
-    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(len(amplitudes), 1)))
+    colours = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(amplitudes), 1)))
     for estimate in estimates:
         colour = colours[amplitudes.index(round(estimate.run.amplitude_nm, 2))]
         f = estimate.frequency_hz
@@ -105,14 +105,12 @@ def plot_fit(
     title
         Figure title.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib import colormaps
 
     path = Path(path)
-    figure, axis = plt.subplots(figsize=(8, 5))
-    colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, max(len(measured), 1)))
+    figure = _figure(figsize=(8, 5))
+    axis = figure.subplots()
+    colours = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(measured), 1)))
     for estimate, db, role, colour in zip(measured, model_db, roles, colours, strict=True):
         label = f"{estimate.run.amplitude_nm:g} N*m ({role})"
         axis.plot(estimate.frequency_hz, estimate.drv_db, color=colour, linewidth=0.8, alpha=0.6)
@@ -145,16 +143,13 @@ def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str =
     title
         Figure title.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     path = Path(path)
     names = list(profiles)
     columns = min(len(names), 5)
     rows = -(-len(names) // columns)
-    figure, axes = plt.subplots(rows, columns, figsize=(3 * columns, 2.6 * rows), squeeze=False)
+    figure = _figure(figsize=(3 * columns, 2.6 * rows))
+    axes = figure.subplots(rows, columns, squeeze=False)
     for axis, name in zip(axes.flat, names, strict=False):
         prof = profiles[name]
         span = prof.values[-1] - prof.values[0]

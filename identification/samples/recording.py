@@ -19,8 +19,6 @@ from dtid.identification.samples.testdata import Series, TestData
 
 logger = logging.getLogger(__name__)
 
-_pauses_reported: dict[Path, int] = {}
-"""Request pauses already reported per recording (a live session's is read again and again)."""
 TIME_DECIMALS = 6
 TIME_RESOLUTION_S = 10.0**-TIME_DECIMALS
 """Resolution of recording times, s: what ASC and candump logs store (BLF stores ns)."""
@@ -59,8 +57,15 @@ class Recording:
         decoded = self.roles[role]
         return Series(decoded.timestamps, decoded.values)
 
-    def test_data(self) -> TestData:
-        """The signals of the FRF pipeline; raises AnalysisError naming what is missing."""
+    def test_data(self, warn: bool = True) -> TestData:
+        """The signals of the FRF pipeline; raises AnalysisError naming what is missing.
+
+        Parameters
+        ----------
+        warn
+            Log the pauses in the test-torque requests (:meth:`warn_pauses`); a caller that
+            reads a growing session again and again warns once per new pause instead.
+        """
         missing = [
             role
             for role in ("speed", "mean_torque", "test_torque")
@@ -71,6 +76,8 @@ class Recording:
                 f"{self.path}: no {', '.join(missing)} frames found (check that the signal map "
                 "names the messages this recording carries; `dtid inspect` lists what it holds)"
             )
+        if warn:
+            self.warn_pauses()
         request = self.roles.get("torque_request")
         return TestData(
             speed=self._crank_series("speed"),
@@ -80,6 +87,24 @@ class Recording:
             if request is not None and len(request.timestamps) > 1
             else None,
         )
+
+    def warn_pauses(self, reported: int = 0) -> int:
+        """Log a warning when the test-torque requests pause longer than the ECU's timeout more
+        often than ``reported`` times; return how often they do."""
+        t = self.roles["test_torque"].timestamps if "test_torque" in self.roles else np.empty(0)
+        gaps = np.diff(t)
+        pauses = gaps[gaps > self.request_timeout_s]
+        if len(pauses) > reported:
+            logger.warning(
+                "%s: %d pause(s) in the test-torque requests longer than the ECU's timeout "
+                "(%.3f s; the longest %.3f s); the test torque is taken as zero after the "
+                "timeout, as the ECU applied it",
+                self.path,
+                len(pauses),
+                self.request_timeout_s,
+                float(np.max(pauses)),
+            )
+        return len(pauses)
 
     def _applied_test_torque(self) -> Series:
         """The test torque the ECU applied, from the requests the recording holds, N*m.
@@ -97,17 +122,6 @@ class Recording:
             value = np.where(enable == 0, 0.0, value)
         timeout = self.request_timeout_s
         pauses = np.flatnonzero(np.diff(t) > timeout)
-        if len(pauses) > _pauses_reported.get(self.path, 0):
-            _pauses_reported[self.path] = len(pauses)  # the worker re-reads a growing session
-            logger.warning(
-                "%s: %d pause(s) in the test-torque requests longer than the ECU's timeout "
-                "(%.3f s; the longest %.3f s); the test torque is taken as zero after the "
-                "timeout, as the ECU applied it",
-                self.path,
-                len(pauses),
-                timeout,
-                float(np.max(np.diff(t)[pauses])),
-            )
         ends = np.append(pauses, len(t) - 1) if len(t) else pauses
         return Series(np.insert(t, ends + 1, t[ends] + timeout), np.insert(value, ends + 1, 0.0))
 

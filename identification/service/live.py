@@ -115,6 +115,8 @@ class LiveSession:
         Welch resolution of the FRFs.
     vehicle
         What the model knows of the vehicle besides its drivetrain (the reference's by default).
+    pauses_reported
+        Pauses in the test-torque requests warned about so far.
     """
 
     start: Mapping[str, Any]
@@ -128,6 +130,7 @@ class LiveSession:
     phase: str | None = None
     health: Mapping[str, Any] | None = None
     end: Mapping[str, Any] | None = None
+    pauses_reported: int = 0
 
     @property
     def id(self) -> str:
@@ -224,8 +227,10 @@ class LiveSession:
         )
 
     def test_data(self) -> TestData:
-        """The FRF pipeline's signals so far."""
-        return self.recording().test_data()
+        """The FRF pipeline's signals so far (a pause in the requests is reported once)."""
+        recording = self.recording()
+        self.pauses_reported = recording.warn_pauses(self.pauses_reported)
+        return recording.test_data(warn=False)
 
     # --- FRFs ---------------------------------------------------------------------------------
 
