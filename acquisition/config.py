@@ -15,8 +15,8 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from dtid.acquisition.plan import TestPlan
 from dtid.errors import ConfigError
-from dtid.simulator.chirp import TestPlan
 
 
 def default_runtime_dir() -> Path:
@@ -60,46 +60,6 @@ class InterfaceConfig:
 
     dbc: Path | None = None
     signals: Path | None = None
-
-
-@dataclass(frozen=True)
-class TestConfig:
-    """The test sequence: settle at idle, chirp at each identification amplitude, then validate.
-
-    Attributes
-    ----------
-    amplitudes_nm
-        Identification amplitudes A1, A2, ..., chirped in this order, N*m.
-    validation_nm
-        Amplitude of the validation chirp A3 after them, N*m; 0 for none.
-    f1_hz, f2_hz, duration_s, settle_s, pause_s, request_period_s
-        As :class:`dtid.simulator.chirp.TestPlan`.
-    """
-
-    __test__ = False
-
-    amplitudes_nm: tuple[float, ...] = (5.0, 10.0)
-    validation_nm: float = 2.0
-    f1_hz: float = 1.0
-    f2_hz: float = 15.0
-    duration_s: float = 60.0
-    settle_s: float = 3.0
-    pause_s: float = 3.0
-    request_period_s: float = 0.01
-
-    def plan(self) -> TestPlan:
-        """The chirps as a :class:`dtid.simulator.chirp.TestPlan` (validation chirp last)."""
-        validation = (self.validation_nm,) if self.validation_nm else ()
-        amplitudes = tuple(self.amplitudes_nm) + validation
-        return TestPlan(
-            amplitudes_nm=amplitudes,
-            f1_hz=self.f1_hz,
-            f2_hz=self.f2_hz,
-            duration_s=self.duration_s,
-            settle_s=self.settle_s,
-            pause_s=self.pause_s,
-            request_period_s=self.request_period_s,
-        )
 
 
 @dataclass(frozen=True)
@@ -175,7 +135,7 @@ class AcquisitionConfig:
 
     bus: BusConfig = field(default_factory=BusConfig)
     vehicle_interface: InterfaceConfig = field(default_factory=InterfaceConfig)
-    test: TestConfig = field(default_factory=TestConfig)
+    test: TestPlan = field(default_factory=TestPlan)
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
@@ -191,7 +151,7 @@ class AcquisitionConfig:
 _SECTIONS = {
     "bus": BusConfig,
     "vehicle_interface": InterfaceConfig,
-    "test": TestConfig,
+    "test": TestPlan,
     "safety": SafetyConfig,
     "output": OutputConfig,
     "pipeline": PipelineConfig,
@@ -255,7 +215,6 @@ def _check(config: AcquisitionConfig) -> None:
             f"{config.safety.max_amplitude_nm:g} N*m; lower the amplitude or, if the vehicle "
             "allows it, raise the cap"
         )
-    test.plan()  # the plan's own checks (band, Nyquist, signs)
 
 
 def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
@@ -285,7 +244,7 @@ def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
             raise ConfigError(f"{path}: [{section}] must be a table")
         cls = _SECTIONS[section]
         defaults = cls()
-        known = {f.name for f in fields(cls)}
+        known = {f.name for f in fields(cls) if f.init}
         converted = {}
         for key, value in values.items():
             if key not in known:
@@ -295,5 +254,8 @@ def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
             converted[key] = _convert(
                 f"{path}: [{section}] {key}", getattr(defaults, key), value, path.parent
             )
-        sections[section] = cls(**converted)
+        try:
+            sections[section] = cls(**converted)
+        except ConfigError as error:
+            raise ConfigError(f"{path}: [{section}] {error}") from None
     return AcquisitionConfig(**sections)

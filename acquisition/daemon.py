@@ -147,7 +147,7 @@ class Daemon:
         config = self.config
         interface = load_interface(config.vehicle_interface.dbc, config.vehicle_interface.signals)
         interface.signal_map.require("speed", "test_torque")
-        plan = config.test.plan()
+        plan = config.test
         self._tool = ToolFrames(interface, plan)
         self._phases = phases(plan)
         self._clock = clock = BusClock(config.bus.time_factor)
@@ -197,10 +197,7 @@ class Daemon:
 
     def _session_fields(self) -> dict[str, Any]:
         config = self.config
-        plan = {
-            key: list(value) if isinstance(value, tuple) else value
-            for key, value in asdict(config.test).items()
-        }
+        plan = config.test.as_dict()
         paths = asdict(config.vehicle_interface)
         return {
             "plan": plan,

@@ -1,12 +1,12 @@
 """The test sequence on the bus: phases, the tool's frames, and the thread that sends them.
 
-The plan (:meth:`dtid.acquisition.config.TestConfig.plan`) runs in test time ``tau`` (s since the
+The plan (:meth:`dtid.acquisition.plan.TestPlan`) runs in test time ``tau`` (s since the
 test started, bus time): settle at idle, chirp A1, pause, chirp A2, pause, validation chirp, pause.
 The
 tool sends exactly the frames a simulated test has (:mod:`dtid.simulator.vehicle_frames`):
 
 * the test torque request at ``tau_k = k * request_period_s`` for every ``tau_k < plan.end_s``,
-  the chirp value held at ``tau_k`` (:func:`dtid.simulator.simulate.test_requests`), ``TestEnable``
+  the chirp value held at ``tau_k`` (:func:`dtid.acquisition.plan.tool_requests`), ``TestEnable``
   1 while a chirp runs, the alive counter +1 per frame modulo its width in the DBC, the checksum
   filled in by :meth:`dbc.VehicleInterface.encode`;
 * the heartbeat every :data:`dtid.dbc.tool_state.HEARTBEAT_PERIOD_S` with the tool state (settling,
@@ -34,10 +34,9 @@ import numpy as np
 
 from dtid.acquisition.clock import BusClock
 from dtid.acquisition.health import EchoFilter, counter_moduli
+from dtid.acquisition.plan import TestPlan, tool_requests
 from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.tool_state import HEARTBEAT_PERIOD_S, TOOL_ABORT, TOOL_CHIRP, TOOL_DONE, TOOL_SETTLING
-from dtid.simulator.chirp import TestPlan
-from dtid.simulator.simulate import test_requests
 
 logger = logging.getLogger(__name__)
 
@@ -110,7 +109,7 @@ class ToolFrames:
         interface.signal_map.require("test_torque")
         self.interface = interface
         self.plan = plan
-        self.request_times, self.request_values = test_requests(plan)
+        self.request_times, self.request_values = tool_requests(plan)
         self.request_enable = np.array(
             [any(c.start_s <= t < c.end_s for c in plan.chirps) for t in self.request_times],
             dtype=np.int64,

@@ -11,7 +11,7 @@ Event kinds and their keys besides ``kind``, ``session`` and ``seq``:
 ``session``
     ``log_path`` (the raw log being written), ``log_start_s`` (timestamp of its first frame, s;
     times in recordings are relative to it), ``plan`` (the test's keys of
-    :class:`dtid.acquisition.config.TestConfig`), ``interface`` (``dbc`` and ``signals`` paths or
+    :class:`dtid.acquisition.plan.TestPlan`), ``interface`` (``dbc`` and ``signals`` paths or
     null for the product's own), ``time_factor``. Always seq 0.
 ``samples``
     ``roles``: per mapped role ``{"t": [...], "value": [...], <extra>: [...]}`` with the

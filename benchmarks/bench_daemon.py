@@ -59,7 +59,7 @@ from dtid.acquisition.config import (
     OutputConfig,
     PipelineConfig,
     SafetyConfig,
-    TestConfig,
+    TestPlan,
 )
 from dtid.acquisition.daemon import Daemon
 from dtid.acquisition.framepath import FramePath
@@ -238,9 +238,7 @@ def latency(bus: str, rate: float, duration_s: float, workdir: Path) -> dict[str
         bus_config = BusConfig(interface="virtual", channel=f"bench-{uuid.uuid4().hex}")
     config = AcquisitionConfig(
         bus=bus_config,
-        test=TestConfig(
-            amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=duration_s, settle_s=0.5
-        ),
+        test=TestPlan(amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=duration_s, settle_s=0.5),
         output=OutputConfig(directory=directory / "runs"),
         pipeline=PipelineConfig(
             blocks=f"ipc://{directory}/ipc/blocks", replay=f"ipc://{directory}/ipc/replay"

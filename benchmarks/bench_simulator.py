@@ -45,12 +45,12 @@ from scipy.interpolate import CubicSpline
 
 import dtid.simulator.simulate as simulate_module
 from benchmarks.solve_ivp_plant import IvpSettings, simulate_solve_ivp
+from dtid.acquisition.plan import TestPlan
 from dtid.errors import AnalysisError
 from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.samples.testdata import Series, from_simulation
 from dtid.simulator.angle_grid import STEPS_PER_SPEED_SAMPLE
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import INDEX, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, SimulationResult, simulate, simulate_batch
 
@@ -74,12 +74,12 @@ COMPILE_PROBE = """
 import json, time
 t0 = time.perf_counter()
 import numpy as np
-from dtid.simulator.chirp import TestPlan
+from dtid.acquisition.plan import TestPlan
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import simulate, simulate_batch
 t1 = time.perf_counter()
 p = reference_parameters()
-plan = TestPlan(amplitudes_nm=(5.0,), duration_s=1.0, settle_s=0.5, pause_s=0.5)
+plan = TestPlan(amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=1.0, settle_s=0.5, pause_s=0.5)
 laps = []
 for _ in range(2):
     s = time.perf_counter(); simulate(p, plan); laps.append(time.perf_counter() - s)
@@ -147,7 +147,11 @@ def measure_compile() -> dict[str, float]:
 
 def measure_single(repeats: int) -> dict[str, float]:
     """(a) simulate(): reference vehicle, default plan and options, one thread."""
-    parameters, plan, options = reference_parameters(), TestPlan(), SimulationOptions()
+    parameters, plan, options = (
+        reference_parameters(),
+        TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0),
+        SimulationOptions(),
+    )
     kernel_times: list[float] = []
     original = simulate_module.run_plant
 
@@ -189,7 +193,7 @@ def batch_inputs(n_jobs: int) -> tuple[np.ndarray, np.ndarray]:
 
 def measure_batch(threads: int, repeats: int, n_jobs: int) -> dict[str, float]:
     """(b) simulate_batch() of ``n_jobs`` single-chirp tests on ``threads`` threads."""
-    plan = TestPlan()
+    plan = TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0)
     params, amplitudes = batch_inputs(n_jobs)
     numba.set_num_threads(threads)
     try:
@@ -212,6 +216,7 @@ def agreement_plan(quick: bool) -> TestPlan:
     """The chirp of the solve_ivp comparison: 10 N*m, 1-15 Hz, 30 s (10 s with --quick)."""
     return TestPlan(
         amplitudes_nm=(AGREEMENT_AMPLITUDE_NM,),
+        validation_nm=0.0,
         duration_s=10.0 if quick else 30.0,
         settle_s=3.0,
         pause_s=3.0,

@@ -26,12 +26,12 @@ import time
 
 import numpy as np
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, run_identification
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import Objective, SearchSettings, refine
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.controller import IdleController
 from dtid.simulator.engine import EngineGeometry
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
@@ -40,7 +40,7 @@ from dtid.simulator.vehicle_data import VehicleData
 
 TRUTH_SPREAD = 0.4
 """Random truths lie within +-40 % of the reference."""
-PLAN = TestPlan(amplitudes_nm=(5.0, 10.0, 2.0))
+PLAN = TestPlan(amplitudes_nm=(5.0, 10.0, 2.0), validation_nm=0.0)
 """The test: the paper's amplitudes, 60 s chirps, the validation chirp last."""
 
 

@@ -2,7 +2,7 @@
 
 Simulates one truth's test with several noise seeds (combustion variation and sensor noise) and,
 at the truth, the Jacobian of eq. (17)'s residuals
-(:func:`dtid.identification.uncertainty.sensitivity.jacobian`). Near its minimum eq. (17) is a
+(:func:`dtid.identification.search.sensitivity.jacobian`). Near its minimum eq. (17) is a
 weighted least-squares fit of the dB residuals, each run's bins weighted by 1 / (spread^2 * NRMSE),
 so the estimate's error to first order is A r with A = (J^T W J)^-1 J^T W and r the recording's
 residual at the truth. Applying A to each seed's residual gives, without a single search, the bias
@@ -31,6 +31,7 @@ import itertools
 import numpy as np
 
 from benchmarks.identification_trial import draw_truth
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs
 from dtid.identification.samples.testdata import from_simulation
@@ -40,9 +41,8 @@ from dtid.identification.search.parameterization import (
     Parameterization,
     theta_from_parameters,
 )
+from dtid.identification.search.sensitivity import jacobian
 from dtid.identification.uncertainty.profile import correlation_length, local_variance
-from dtid.identification.uncertainty.sensitivity import jacobian
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -79,7 +79,9 @@ def main() -> None:
     args = parser.parse_args()
 
     truth = draw_truth(args.truth)
-    plan = TestPlan(amplitudes_nm=tuple(args.amplitudes), duration_s=args.duration)
+    plan = TestPlan(
+        amplitudes_nm=tuple(args.amplitudes), validation_nm=0.0, duration_s=args.duration
+    )
     options = SimulationOptions()
     if args.recorded:
         variation, speed_noise, torque_noise = args.recorded

@@ -59,6 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.integrate import OdeSolution, solve_ivp
 
+from dtid.acquisition.plan import TestPlan
 from dtid.errors import AnalysisError
 from dtid.simulator.angle_grid import (
     N_CYL,
@@ -69,7 +70,6 @@ from dtid.simulator.angle_grid import (
     STEPS_PER_SPEED_SAMPLE,
     STEPS_PER_STROKE,
 )
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.couplings import dead_zone, dmf_smooth_torque
 from dtid.simulator.engine import engine_tables
 from dtid.simulator.kernel import MAX_SPEED_RATIO, MIN_SPEED_RATIO
@@ -78,7 +78,7 @@ from dtid.simulator.simulate import (
     SimulationOptions,
     SimulationResult,
     output_capacity,
-    test_requests,
+    tool_requests,
 )
 
 FRICTION_WIDTH_RAD_S = 1e-3
@@ -323,7 +323,7 @@ def simulate_solve_ivp(
         If the engine stalls or runs away.
     """
     started = time.perf_counter()
-    plan = plan or TestPlan()
+    plan = plan or TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0)
     options = options or SimulationOptions()
     settings = settings or IvpSettings()
     p = parameters
@@ -334,7 +334,7 @@ def simulate_solve_ivp(
         if options.pulsation and not settings.hold_table
         else options.tables()
     )
-    request_t, request_nm = test_requests(plan)
+    request_t, request_nm = tool_requests(plan)
     sigma_cv, sigma_speed, sigma_torque = options.sigmas()
     n_speed_max, n_stroke_max = output_capacity(plan.end_s, controller)
     rng = np.random.default_rng(seed)

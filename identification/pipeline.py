@@ -13,9 +13,13 @@ run, so what follows the test (the daemon's last frames) does not matter either.
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -46,7 +50,11 @@ from dtid.identification.search.parameterization import (
 )
 from dtid.identification.search.start_values import start_thetas
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
+from dtid.jsonfile import write_json
 from dtid.simulator.parameters import DrivetrainParameters
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 logger = logging.getLogger(__name__)
 
@@ -256,6 +264,36 @@ class IdentificationReport:
                     model.append(db[0])
                     roles.append(role)
         return measured, model, roles
+
+    @property
+    def parameters(self) -> dict[str, float]:
+        """The identified parameters by name (setup 4's, the inertias J1-J3 and K), SI units
+        (``units`` of :meth:`as_dict`)."""
+        return dict(self.as_dict()["parameters"])  # type: ignore[arg-type]
+
+    @property
+    def intervals(self) -> dict[str, tuple[float, float]]:
+        """The profile likelihood interval of each profiled parameter, (lower, upper), SI
+        units; empty when profiles were not asked for."""
+        return {name: prof.interval for name, prof in self.profiles.items()}
+
+    def to_json(self, path: str | os.PathLike[str] | None = None) -> str:
+        """The JSON document of ``dtid identify`` (docs/schemas.md) as text, also written to
+        ``path`` when one is given."""
+        document = self.as_dict()
+        if path is not None:
+            write_json(Path(path), document)
+        return json.dumps(document, indent=1, allow_nan=False)
+
+    def plot(self, path: str | os.PathLike[str] | None = None) -> Figure:
+        """Measured and identified |G_DRV| of every run, as the paper's Fig. 6 (a matplotlib
+        figure; also saved to ``path`` when one is given, format by suffix)."""
+        from dtid.identification.plots import fit_figure, plot_fit
+
+        curves = self.fit_curves()
+        if path is not None:
+            plot_fit(*curves, path)
+        return fit_figure(*curves)
 
     def as_dict(self) -> dict[str, object]:
         """The JSON document of ``dtid identify``."""

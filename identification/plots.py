@@ -1,60 +1,61 @@
 """Figures of the FRF pipeline, drawn with matplotlib (imported here only, never by computation).
 
-:func:`plot_frf` draws |G_DRV| per amplitude as the paper's Fig. 3, with |G_ENG| and the coherence
-below it.
+Each figure has a function that draws it on a :class:`matplotlib.figure.Figure` of its own, outside
+pyplot (no backend is chosen or changed, so a notebook's stays as it was and no window opens),
+and a ``plot_*`` function that saves it:
+
+* :func:`frf_figure`: |G_DRV| per amplitude as the paper's Fig. 3, |G_ENG| and the coherence below;
+* :func:`fit_figure`: measured and identified |G_DRV| per run, as Fig. 6;
+* :func:`profiles_figure`: the likelihood profiles of one setup, as a row of Fig. 5.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dtid.errors import RecordingError
 from dtid.identification.frf.closed_loop import FrfEstimate
 
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
 COHERENCE_FLOOR = 0.7
 """Bins below this coherence are drawn faint: noise makes up a third or more of the response."""
 
 
-def _figure(**options: object) -> object:
-    """A matplotlib figure of its own, outside pyplot: no backend is chosen or changed, so a
-    notebook's or an application's stays as it was, and no window opens."""
+def _figure(**options: object) -> Figure:
+    """A matplotlib figure of its own, outside pyplot."""
     from matplotlib.figure import Figure
 
     return Figure(**options)
 
 
-def _save(figure: object, path: Path) -> Path:
-    """Write a figure (format by suffix); a failure names the file."""
+def _save(figure: Figure, path: str | Path) -> Path:
+    """Write a figure (format by suffix: .png, .pdf, .svg); a failure names the file."""
+    path = Path(path)
     try:
-        figure.savefig(path, dpi=110)  # type: ignore[attr-defined]
+        figure.savefig(path, dpi=110)
     except (OSError, ValueError) as error:
         raise RecordingError(f"cannot write the plot {path}: {error}") from None
     return path
 
 
-def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = "") -> Path:
-    """Save |G_DRV|, |G_ENG| and the coherence of each chirp run to an image file.
+def frf_figure(estimates: Sequence[FrfEstimate], title: str = "") -> Figure:
+    """|G_DRV|, |G_ENG| and the coherence of each chirp run, as the paper's Fig. 3.
 
     Parameters
     ----------
     estimates
         One FRF per chirp run; runs of equal amplitude share a colour.
-    path
-        Output file; the format follows its suffix (.png, .pdf, .svg).
     title
         Figure title.
-
-    Returns
-    -------
-    pathlib.Path
-        The file written.
     """
     from matplotlib import colormaps
 
-    path = Path(path)
     figure = _figure(figsize=(8, 8))
     ax_drv, ax_eng, ax_coh = figure.subplots(3, 1, sharex=True, height_ratios=(3, 1.2, 1.2))
     amplitudes = sorted({round(e.run.amplitude_nm, 2) for e in estimates})
@@ -80,17 +81,21 @@ def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = ""
     for axis in (ax_drv, ax_eng, ax_coh):
         axis.grid(True, which="both", alpha=0.3)
     figure.tight_layout()
-    return _save(figure, path)
+    return figure
 
 
-def plot_fit(
+def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = "") -> Path:
+    """Save :func:`frf_figure` to ``path``; return it."""
+    return _save(frf_figure(estimates, title), path)
+
+
+def fit_figure(
     measured: Sequence[FrfEstimate],
     model_db: Sequence[np.ndarray],
     roles: Sequence[str],
-    path: str | Path,
     title: str = "",
-) -> Path:
-    """Save measured and identified |G_DRV| per run, as the paper's Fig. 6.
+) -> Figure:
+    """Measured and identified |G_DRV| per run, as the paper's Fig. 6.
 
     Parameters
     ----------
@@ -100,14 +105,11 @@ def plot_fit(
         The identified model's |G_DRV| in dB on each run's grid.
     roles
         ``"fit"`` or ``"validation"`` per run (validation runs are drawn dashed).
-    path
-        Output file; the format follows its suffix.
     title
         Figure title.
     """
     from matplotlib import colormaps
 
-    path = Path(path)
     figure = _figure(figsize=(8, 5))
     axis = figure.subplots()
     colours = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(measured), 1)))
@@ -128,23 +130,30 @@ def plot_fit(
     axis.grid(True, alpha=0.3)
     axis.legend(fontsize="small")
     figure.tight_layout()
-    return _save(figure, path)
+    return figure
 
 
-def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str = "") -> Path:
-    """Save the likelihood profiles of one setup, as a row of the paper's Fig. 5.
+def plot_fit(
+    measured: Sequence[FrfEstimate],
+    model_db: Sequence[np.ndarray],
+    roles: Sequence[str],
+    path: str | Path,
+    title: str = "",
+) -> Path:
+    """Save :func:`fit_figure` to ``path``; return it."""
+    return _save(fit_figure(measured, model_db, roles, title), path)
+
+
+def profiles_figure(profiles: Mapping[str, object], title: str = "") -> Figure:
+    """The likelihood profiles of one setup, as a row of the paper's Fig. 5.
 
     Parameters
     ----------
     profiles
         :class:`dtid.identification.uncertainty.profile.Profile` by parameter name.
-    path
-        Output file; the format follows its suffix.
     title
         Figure title.
     """
-
-    path = Path(path)
     names = list(profiles)
     columns = min(len(names), 5)
     rows = -(-len(names) // columns)
@@ -162,4 +171,9 @@ def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str =
     axes[0, 0].set_ylabel("NRMSE (eq. 17)")
     figure.suptitle(title or "Likelihood profiles")
     figure.tight_layout()
-    return _save(figure, path)
+    return figure
+
+
+def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str = "") -> Path:
+    """Save :func:`profiles_figure` to ``path``; return it."""
+    return _save(profiles_figure(profiles, title), path)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.model.response import ModelTest
@@ -32,7 +33,6 @@ from dtid.identification.search.parameterization import (
     theta_from_parameters,
 )
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -110,7 +110,7 @@ def profile_setup(
 
     Setup 2's stiffness and free play get the verdict ``no`` of eq. (22) (one amplitude), as the
     paper concludes, whatever their profiles' intervals."""
-    plan = TestPlan(amplitudes_nm=chosen.amplitudes_nm, duration_s=duration_s)
+    plan = TestPlan(amplitudes_nm=chosen.amplitudes_nm, validation_nm=0.0, duration_s=duration_s)
     data = from_simulation(simulate(chosen.truth, plan, SimulationOptions.clean()))
     estimates = tuple(estimate_frf(data, run) for run in find_runs(data.test_torque))
     theta = theta_from_parameters(chosen.truth)

@@ -85,7 +85,7 @@ class EngineTables:
 
         Each cylinder's shape is 1 over its working stroke (pi after its firing TDC) and 0
         elsewhere, so the engine torque is the current stroke's T_m, held for the stroke: the
-        continuous hold of :func:`dtid.identification.model.sensor_response.stroke_hold_gain`.
+        continuous hold of :func:`dtid.identification.frf.sensor_response.stroke_hold_gain`.
         """
         stroke = np.where(np.arange(STEPS_PER_CYCLE) < STEPS_PER_STROKE, 1.0, 0.0)
         zero = np.zeros(STEPS_PER_CYCLE)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dtid.acquisition.plan import TestPlan, tool_requests
 from dtid.errors import AnalysisError, ConfigError
 from dtid.simulator.angle_grid import (
     RPM_PER_RAD_S,
@@ -19,7 +20,6 @@ from dtid.simulator.angle_grid import (
     STEPS_PER_SPEED_SAMPLE,
     STEPS_PER_STROKE,
 )
-from dtid.simulator.chirp import TestPlan, requested_test_torques
 from dtid.simulator.controller import IdleController
 from dtid.simulator.engine import EngineGeometry, EngineTables, engine_tables
 from dtid.simulator.kernel import (
@@ -213,12 +213,6 @@ def output_capacity(t_end: float, controller: IdleController) -> tuple[int, int]
     return int(steps / STEPS_PER_SPEED_SAMPLE) + 8, int(steps / STEPS_PER_STROKE) + 8
 
 
-def test_requests(plan: TestPlan) -> tuple[np.ndarray, np.ndarray]:
-    """The tool's test-torque requests over the whole test: times, s, and values, N*m."""
-    times = np.arange(0.0, plan.end_s, plan.request_period_s)
-    return times, requested_test_torques(times, plan.schedule(), plan.request_period_s)
-
-
 def simulate(
     parameters: DrivetrainParameters,
     plan: TestPlan | None = None,
@@ -251,7 +245,7 @@ def simulate(
     options = options or SimulationOptions()
     params = parameters.as_array()
     n_speed_max, n_stroke_max = output_capacity(plan.end_s, options.controller)
-    request_t, request_nm = test_requests(plan)
+    request_t, request_nm = tool_requests(plan)
     rng = np.random.default_rng(seed)
     cv_noise = rng.standard_normal(n_stroke_max)
     torque_noise = rng.standard_normal(n_stroke_max)
@@ -337,6 +331,7 @@ def simulate_batch(
     """
     single = TestPlan(
         amplitudes_nm=(1.0,),
+        validation_nm=0.0,
         f1_hz=plan.f1_hz,
         f2_hz=plan.f2_hz,
         duration_s=plan.duration_s,
@@ -344,7 +339,7 @@ def simulate_batch(
         pause_s=plan.pause_s,
         request_period_s=plan.request_period_s,
     )
-    request_t, request_nm = test_requests(single)
+    request_t, request_nm = tool_requests(single)
     return replay_batch(
         params, request_t, request_nm, amplitudes_nm, single.end_s, options, seed, streams, signs
     )

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.samples.testdata import TestData, from_simulation
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, SimulationResult, simulate
 
@@ -31,7 +31,12 @@ def reference() -> DrivetrainParameters:
 @pytest.fixture(scope="session")
 def reference_test(reference: DrivetrainParameters) -> SimulationResult:
     """The default three-amplitude test with realistic noise, seed 1."""
-    return simulate(reference, TestPlan(), SimulationOptions(), seed=1)
+    return simulate(
+        reference,
+        TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0),
+        SimulationOptions(),
+        seed=1,
+    )
 
 
 @pytest.fixture(scope="session")

@@ -35,7 +35,7 @@ from dtid.acquisition.config import (
     OutputConfig,
     PipelineConfig,
     SafetyConfig,
-    TestConfig,
+    TestPlan,
 )
 from dtid.acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
 from dtid.acquisition.health import HealthCounts
@@ -58,7 +58,7 @@ CRANK_EVENT_S = 0.015
 TIME_FACTOR = 2.0
 VEHICLE_TIMEOUT_S = 1.0
 """Bus time (0.5 s wall): long enough that a busy machine never stalls the fake ECU that long."""
-SHORT_TEST = TestConfig(
+SHORT_TEST = TestPlan(
     amplitudes_nm=(5.0, 10.0), validation_nm=2.0, duration_s=1.0, settle_s=0.3, pause_s=0.3
 )
 
@@ -232,7 +232,7 @@ def test_completed_test_records_every_frame_and_streams_it(tmp_path: Path) -> No
     ecu_frames = [(f.arbitration_id, bytes(f.data)) for f in ecu.sent]
     logged = [(f.arbitration_id, bytes(f.data)) for f in received]
     assert logged == ecu_frames[: len(logged)]
-    plan = config.test.plan()
+    plan = config.test
     assert subscriber.replayed is not None
     t_start = next(e["t_s"] for e in subscriber.replayed if e["kind"] == "phase")
     in_test = [t_start <= f.timestamp < t_start + plan.end_s for f in by_id(received, SPEED_ID)]

@@ -7,22 +7,23 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan, tool_requests
 from dtid.acquisition.sequence import ToolFrames, phases
 from dtid.dbc import tool_state
 from dtid.dbc.checksum import verify_checksum
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
-from dtid.simulator import simulate
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.vehicle_frames import simulation_frames
 
 INTERFACE = load_interface()
-PLAN = TestPlan(amplitudes_nm=(5.0, 10.0, 2.0), duration_s=1.0, settle_s=0.3, pause_s=0.2)
+PLAN = TestPlan(
+    amplitudes_nm=(5.0, 10.0, 2.0), validation_nm=0.0, duration_s=1.0, settle_s=0.3, pause_s=0.2
+)
 
 
 def tool_frames_of_a_simulated_test(plan: TestPlan) -> list[tuple[int, bytes, float]]:
     """The tool's frames :func:`simulation_frames` writes for a test (no ECU frames)."""
-    request_t, request_nm = simulate.test_requests(plan)
+    request_t, request_nm = tool_requests(plan)
     empty = np.zeros(0)
     result = SimpleNamespace(
         plan=plan,
@@ -84,7 +85,9 @@ def test_phases_follow_the_plan() -> None:
 
 
 def test_phases_without_settle_and_pauses() -> None:
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=1.0, settle_s=0.0, pause_s=0.0)
+    plan = TestPlan(
+        amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=1.0, settle_s=0.0, pause_s=0.0
+    )
     assert [(p.name, p.start_s) for p in phases(plan)] == [
         ("chirp", 0.0),
         ("chirp", 1.0),
@@ -108,4 +111,4 @@ def test_tool_states_are_the_dbc_value_table() -> None:
 
 def test_request_the_dbc_cannot_carry_is_refused_before_the_test() -> None:
     with pytest.raises(ConfigError, match="TestTorque"):
-        ToolFrames(INTERFACE, TestPlan(amplitudes_nm=(400.0,)))
+        ToolFrames(INTERFACE, TestPlan(amplitudes_nm=(400.0,), validation_nm=0.0))

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.combustion import stroke_variation, variation_and_noise
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import TestData, from_simulation
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -38,7 +38,7 @@ def test_too_few_strokes_give_nothing() -> None:
 
 def test_a_simulated_recording_gives_its_truth_back(reference: DrivetrainParameters) -> None:
     """The simulator's 3 % and 0.3 N*m (the idle scatter, sensor noise included, 0.036)."""
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     data = from_simulation(simulate(reference, plan, SimulationOptions(), seed=7))
     measured = MeasuredTest.from_data("x", data, 0.25)
     assert measured.loop.combustion_variation == pytest.approx(0.03, rel=0.1)

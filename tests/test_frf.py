@@ -6,17 +6,19 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from dtid.acquisition.plan import TestPlan, requested_test_torque
 from dtid.errors import AnalysisError
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
-from dtid.identification.model.sensor_response import speed_filter_gain, torque_hold_gain
+from dtid.identification.frf.sensor_response import speed_filter_gain, torque_hold_gain
 from dtid.identification.samples.testdata import Series, TestData
 from dtid.simulator.angle_grid import N_WIN, step_time
-from dtid.simulator.chirp import TestPlan, requested_test_torque
 
 
 def test_runs_found_with_their_chirp_parameters() -> None:
-    plan = TestPlan(amplitudes_nm=(2.0, 10.0), f1_hz=1.5, f2_hz=12.0, duration_s=30.0)
+    plan = TestPlan(
+        amplitudes_nm=(2.0, 10.0), validation_nm=0.0, f1_hz=1.5, f2_hz=12.0, duration_s=30.0
+    )
     t = np.arange(0.0, plan.end_s, plan.request_period_s)
     value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
     runs = find_runs(Series(t, value))
@@ -31,7 +33,7 @@ def test_runs_found_with_their_chirp_parameters() -> None:
 def test_holes_in_the_requests_do_not_bend_the_sweep() -> None:
     """A sender that stalled now and then (100-300 ms without requests, as seen on a busy
     laptop): the run and its sweep are still found as sent."""
-    plan = TestPlan(amplitudes_nm=(2.0,), f1_hz=1.0, f2_hz=15.0, duration_s=60.0)
+    plan = TestPlan(amplitudes_nm=(2.0,), validation_nm=0.0, f1_hz=1.0, f2_hz=15.0, duration_s=60.0)
     t = np.arange(0.0, plan.end_s, plan.request_period_s)
     value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
     keep = np.ones(len(t), dtype=bool)
@@ -47,7 +49,7 @@ def test_holes_read_as_the_ecu_applied_them_do_not_bend_the_sweep() -> None:
     """The same holes with the test torque zero from the ECU's timeout on (as a recording is
     read, :mod:`dtid.identification.samples.recording`): a zero sample is crossed twice at one
     instant, and the sweep is still found as sent, without a division by zero on the way."""
-    plan = TestPlan(amplitudes_nm=(2.0,), f1_hz=1.0, f2_hz=15.0, duration_s=60.0)
+    plan = TestPlan(amplitudes_nm=(2.0,), validation_nm=0.0, f1_hz=1.0, f2_hz=15.0, duration_s=60.0)
     t = np.arange(0.0, plan.end_s, plan.request_period_s)
     value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
     t0 = plan.chirps[0].start_s
@@ -66,7 +68,9 @@ def test_bursts_of_a_sender_catching_up_do_not_bend_the_sweep() -> None:
     """A sender 100 ms late 25 times in a 30 s chirp, each time catching up in a burst of frames
     1e-4 s apart (the values are the slots', the times the sending's): the sweep is still found
     as sent. A least-squares line through the bunched crossings had given f1 < 0 on such a log."""
-    plan = TestPlan(amplitudes_nm=(10.0,), f1_hz=1.0, f2_hz=15.0, duration_s=30.0)
+    plan = TestPlan(
+        amplitudes_nm=(10.0,), validation_nm=0.0, f1_hz=1.0, f2_hz=15.0, duration_s=30.0
+    )
     t = np.arange(0.0, plan.end_s, plan.request_period_s)
     value = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
     sent = t.copy()
@@ -104,7 +108,7 @@ def test_torque_hold_gain_is_a_two_sample_hold() -> None:
 
 
 def _data(duration_s: float, gap_at: float | None = None) -> TestData:
-    plan = TestPlan(amplitudes_nm=(5.0,), duration_s=duration_s)
+    plan = TestPlan(amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=duration_s)
     t = np.arange(0.0, plan.end_s, plan.request_period_s)
     z = np.array([requested_test_torque(x, plan.schedule(), plan.request_period_s) for x in t])
     ts = np.arange(0.0, plan.end_s, 0.015)

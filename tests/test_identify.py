@@ -6,6 +6,7 @@ import dataclasses
 
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import run_identification
@@ -23,7 +24,6 @@ from dtid.identification.search.parameterization import (
     theta_from_parameters,
 )
 from dtid.identification.search.start_values import start_thetas
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -31,7 +31,7 @@ from dtid.simulator.simulate import SimulationOptions, simulate
 @pytest.fixture(scope="module")
 def softer_dmf(reference: DrivetrainParameters) -> tuple[DrivetrainParameters, MeasuredTest]:
     truth = reference.replace(c12=1.2 * reference.c12, eps12=1.2 * reference.eps12)
-    plan = TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     data = from_simulation(simulate(truth, plan, SimulationOptions.clean()))
     return truth, MeasuredTest.from_data("clean", data, 0.25)
 
@@ -126,7 +126,7 @@ def test_linear_stiffness_and_damping_recovered(reference: DrivetrainParameters)
     """Without free play and friction the objective is smooth: c12 and d12 come back exactly."""
     linear = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0)
     truth = linear.replace(c12=1.3 * linear.c12, d12=0.7 * linear.d12)
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     data = from_simulation(simulate(truth, plan, SimulationOptions.clean()))
     measured = MeasuredTest.from_data("linear", data, 0.25)
     result = _identify_two(linear, truth, measured, ("c12", "d12"))
@@ -184,7 +184,14 @@ def test_the_combustion_variation_is_told_from_the_sensor_noise_or_given(
     two apart (:func:`dtid.identification.model.combustion.variation_and_noise`), and the model
     repeats the 3 %. A value given with --fix replaces it in the fit, the validation and the
     JSON."""
-    data = from_simulation(simulate(reference, TestPlan(), SimulationOptions(), seed=3))
+    data = from_simulation(
+        simulate(
+            reference,
+            TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0),
+            SimulationOptions(),
+            seed=3,
+        )
+    )
     measured = MeasuredTest.from_data("reference", data, 0.25)
     assert measured.combustion_variation == pytest.approx(0.03, rel=0.1)
     assert measured.loop.torque_noise_nm == pytest.approx(0.3, rel=0.15)

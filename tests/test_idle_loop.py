@@ -14,11 +14,11 @@ import dataclasses
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.idle_loop import MEASURED_TORQUE, RECORDED_REQUEST, latch
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import TestData, from_simulation
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -31,7 +31,9 @@ ECUS = {
         kp_nm_per_rpm=0.25, ki_nm_per_rpm_s=0.4, kd_nm_per_rpm_s=0.01, error_tau_s=0.02
     ),
 }
-PLAN = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=20.0, f1_hz=1.0, f2_hz=15.0)
+PLAN = TestPlan(
+    amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=20.0, f1_hz=1.0, f2_hz=15.0
+)
 
 
 @pytest.fixture(scope="module", params=list(ECUS))

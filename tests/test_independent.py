@@ -27,7 +27,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dtid.cli.commands.common import measured_tests
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.pipeline import run_identification
 from dtid.identification.search.identify import Objective, refine
@@ -35,6 +34,7 @@ from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
 from dtid.simulator.vehicle_data import load_vehicle_data
+from dtid.workflow import measured_tests
 
 INDEPENDENT = Path(__file__).resolve().parents[2] / "shared" / "independent"
 TARGETS = {

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 from dtid.acquisition.logfile import write_log
+from dtid.acquisition.plan import TestPlan
 from dtid.dbc.loader import load_interface
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.samples.late_frames import retime_late_bursts
 from dtid.identification.samples.recording import load_recording
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import simulate
 from dtid.simulator.vehicle_frames import simulation_frames
@@ -86,7 +86,9 @@ def test_a_stalled_vehicle_gives_the_frf_of_an_even_one(
     """A 120 ms stall of the vehicle's frames inside a chirp: the run is analysed, not refused,
     and its FRF is the unstalled one's; a duplicated frame is dropped by its counter."""
     interface = load_interface()
-    result = simulate(reference, TestPlan(amplitudes_nm=(10.0,), duration_s=20.0), seed=4)
+    result = simulate(
+        reference, TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=20.0), seed=4
+    )
     frames = simulation_frames(result, interface)
     even, stalled = tmp_path / "even.blf", tmp_path / "stalled.blf"
     write_log(even, frames)

@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.model.response import SETTLE_S, ModelTest, model_drv_db
@@ -19,7 +20,6 @@ from dtid.identification.search.parameterization import (
     theta_from_parameters,
     theta_to_arrays,
 )
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -53,7 +53,7 @@ def test_nrmse_eq16() -> None:
 
 def test_model_replays_a_clean_recording_exactly(reference: DrivetrainParameters) -> None:
     """Same parameters, same requests, same estimator: the model's |G_DRV| is the measured one."""
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     data = from_simulation(simulate(reference, plan, SimulationOptions.clean()))
     runs = find_runs(data.test_torque)
     measured = [estimate_frf(data, run) for run in runs]
@@ -66,7 +66,7 @@ def test_model_replays_a_clean_recording_exactly(reference: DrivetrainParameters
 
 
 def test_each_row_depends_on_its_own_parameters_only(reference: DrivetrainParameters) -> None:
-    plan = TestPlan(amplitudes_nm=(10.0,), duration_s=20.0)
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=20.0)
     data = from_simulation(simulate(reference, plan))
     test = ModelTest(
         data.test_torque, (estimate_frf(data, find_runs(data.test_torque)[0]),), 1000.0
@@ -78,7 +78,7 @@ def test_each_row_depends_on_its_own_parameters_only(reference: DrivetrainParame
 
 
 def test_a_set_that_cannot_idle_gets_nan(reference: DrivetrainParameters) -> None:
-    plan = TestPlan(amplitudes_nm=(5.0,), duration_s=10.0)
+    plan = TestPlan(amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=10.0)
     data = from_simulation(simulate(reference, plan, SimulationOptions.clean()))
     runs = find_runs(data.test_torque)
     test = ModelTest(data.test_torque, (estimate_frf(data, runs[0], resolution_hz=1.0),), 1000.0)

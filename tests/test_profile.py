@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import (
@@ -28,7 +29,6 @@ from dtid.identification.uncertainty.profile import (
     profile,
     statistic,
 )
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -71,7 +71,7 @@ def test_interval_ends_at_a_model_that_cannot_idle() -> None:
 def decoupled(reference: DrivetrainParameters) -> tuple:
     """Linear two-mass plant: J3 hangs free (c23 = d23 = eps23 = 0), the truth is the prior."""
     truth = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0, c23=0.0, d23=0.0)
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     measured = MeasuredTest.from_data(
         "two-mass", from_simulation(simulate(truth, plan, SimulationOptions.clean())), 0.25
     )
@@ -104,7 +104,7 @@ def test_profiles_tell_identifiable_from_decoupled(decoupled: tuple) -> None:
 def test_interval_contains_the_truth_on_noisy_data(reference: DrivetrainParameters) -> None:
     """Realistic noise: identify c12 and d12, then the 95 % profile interval holds the truth."""
     truth = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0, c23=0.0, d23=0.0)
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     measured = MeasuredTest.from_data(
         "noisy", from_simulation(simulate(truth, plan, SimulationOptions(), seed=4)), 0.25
     )
@@ -178,7 +178,7 @@ def _stiffness_and_play_profiles(amplitudes: tuple[float, ...]) -> tuple[dict, d
     """A two-mass plant with DMF free play, a noisy 30 s chirp per amplitude: c12 and eps12
     identified with everything else fixed at the truth, then both profiled."""
     truth = two_mass(reference_parameters(), free_play=True)
-    plan = TestPlan(amplitudes_nm=amplitudes, duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=amplitudes, validation_nm=0.0, duration_s=30.0)
     measured = MeasuredTest.from_data(
         "free play", from_simulation(simulate(truth, plan, SimulationOptions(), seed=4)), 0.25
     )

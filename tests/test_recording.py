@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 
 from dtid.acquisition.logfile import write_log
+from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.plan import tool_requests as plan_requests
 from dtid.dbc.loader import load_interface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.samples.recording import _in_time_order, load_recording
 from dtid.identification.samples.testdata import Series
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, SimulationResult, replay_batch, simulate
-from dtid.simulator.simulate import test_requests as plan_requests
 from dtid.simulator.vehicle_frames import simulation_frames
 
 DATA = Path(__file__).parent / "data"
@@ -27,7 +27,7 @@ FORMATS = (".blf", ".asc", ".log")
 
 @pytest.fixture(scope="module")
 def short_test(reference: DrivetrainParameters) -> SimulationResult:
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     return simulate(reference, plan, seed=3)
 
 
@@ -110,7 +110,7 @@ def test_a_pause_in_the_requests_is_read_as_the_ecu_applied_it(
     the last one for its timeout and zero after. The recording's test torque is what the ECU
     applied, so the FRF is the one of the plant's true input; holding the last request (what
     the log alone says) gives another."""
-    plan = TestPlan(amplitudes_nm=(10.0,), duration_s=20.0)
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=20.0)
     t, value = plan_requests(plan)
     stall = (t > plan.settle_s + 8.0) & (t < plan.settle_s + 8.3)
     last = np.flatnonzero(stall)[0] - 1

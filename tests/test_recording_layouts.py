@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.cli import main
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
@@ -18,7 +19,6 @@ from dtid.identification.pipeline import RunSelection, identification_runs, vali
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import engine_gain
 from dtid.identification.search.objective import nrmse
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -28,7 +28,7 @@ DURATION_S = 20.0
 def _recording(
     truth: DrivetrainParameters, amplitudes: tuple[float, ...], name: str
 ) -> MeasuredTest:
-    plan = TestPlan(amplitudes_nm=amplitudes, duration_s=DURATION_S)
+    plan = TestPlan(amplitudes_nm=amplitudes, validation_nm=0.0, duration_s=DURATION_S)
     data = from_simulation(simulate(truth, plan, SimulationOptions.clean()))
     return MeasuredTest.from_data(name, data, 0.25)
 

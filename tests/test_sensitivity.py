@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import TestData, from_simulation
 from dtid.identification.search.identify import (
@@ -24,8 +25,7 @@ from dtid.identification.search.parameterization import (
     Parameterization,
     theta_from_parameters,
 )
-from dtid.identification.uncertainty.sensitivity import compensation, jacobian
-from dtid.simulator.chirp import TestPlan
+from dtid.identification.search.sensitivity import compensation, jacobian
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -36,7 +36,7 @@ FREE = ("J_sum", "x12", "c12", "c23", "d12")
 def linear(reference: DrivetrainParameters) -> tuple[Objective, np.ndarray]:
     """Eq. (17) of a clean linear recording with five free parameters, and the truth's units."""
     truth = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0)
-    plan = TestPlan(amplitudes_nm=(5.0, 10.0), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
     measured = MeasuredTest.from_data(
         "linear", from_simulation(simulate(truth, plan, SimulationOptions.clean())), 0.25
     )

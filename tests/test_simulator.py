@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
 from dtid.errors import AnalysisError
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
-from dtid.identification.model.sensor_response import stroke_hold_gain
+from dtid.identification.frf.sensor_response import stroke_hold_gain
 from dtid.identification.samples.testdata import from_simulation
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.controller import IdleController
 from dtid.simulator.kernel import run_plant
 from dtid.simulator.linear import three_mass_frf
@@ -48,7 +48,9 @@ def test_linear_plant_matches_analytic_three_mass_frf(
     options = SimulationOptions.clean(
         pulsation=False, controller=IdleController(closed_loop=closed_loop)
     )
-    result = simulate(p, TestPlan(amplitudes_nm=(amplitude_nm,), duration_s=120.0), options)
+    result = simulate(
+        p, TestPlan(amplitudes_nm=(amplitude_nm,), validation_nm=0.0, duration_s=120.0), options
+    )
     frf = _frf(result)
     # eq. (14) keeps the engine's hold of each stroke's torque (READING-NOTES, sensors)
     analytic = np.abs(three_mass_frf(p, frf.frequency_hz)) * stroke_hold_gain(
@@ -102,14 +104,16 @@ def test_sensor_timing_follows_the_crank(reference_test: SimulationResult) -> No
 
 
 def test_batch_equals_single_runs(reference: DrivetrainParameters) -> None:
-    plan = TestPlan(amplitudes_nm=(1.0,), duration_s=10.0)
+    plan = TestPlan(amplitudes_nm=(1.0,), validation_nm=0.0, duration_s=10.0)
     options = SimulationOptions.clean()
     params = np.stack([reference.as_array(), reference.replace(c12=200.0).as_array()])
     amplitudes = np.array([10.0, 2.0])
     batch = simulate_batch(params, amplitudes, plan, options)
     assert list(batch.status) == [0, 0]
     for job in range(2):
-        single_plan = TestPlan(amplitudes_nm=(float(amplitudes[job]),), duration_s=10.0)
+        single_plan = TestPlan(
+            amplitudes_nm=(float(amplitudes[job]),), validation_nm=0.0, duration_s=10.0
+        )
         single = simulate(DrivetrainParameters.from_array(params[job]), single_plan, options)
         n = batch.n_speed[job]
         np.testing.assert_array_equal(batch.speed[job, :n, 1], single.speed_rpm)
@@ -121,7 +125,7 @@ def test_antithetic_pair_cancels_the_variations_first_order_effect(
     """Linear plant, combustion variation only: a job and its antithetic twin (the same draws
     negated) deviate from the noise-free run by equal and opposite first-order amounts, so
     their mean is that run up to second order (relative size about the 3 % variation)."""
-    plan = TestPlan(amplitudes_nm=(1.0,), duration_s=10.0)
+    plan = TestPlan(amplitudes_nm=(1.0,), validation_nm=0.0, duration_s=10.0)
     params = np.repeat(_linear(reference).as_array()[None], 3, axis=0)
     amplitudes = np.full(3, 5.0)
     clean = simulate_batch(params[:1], amplitudes[:1], plan, SimulationOptions.clean())
@@ -145,7 +149,7 @@ def test_antithetic_pair_cancels_the_variations_first_order_effect(
 
 def test_integration_converges_with_substeps(reference: DrivetrainParameters) -> None:
     """One step of pi/30 is accurate: four substeps change |G_DRV| by less than 0.2 dB."""
-    plan = TestPlan(amplitudes_nm=(10.0,), duration_s=30.0)
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=30.0)
     options = SimulationOptions.clean()
     tables = options.tables()
     requests = simulate(reference, plan, options)  # supplies the tool's test-torque requests
@@ -192,13 +196,13 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
 def test_a_parameter_set_that_cannot_idle_is_refused(reference: DrivetrainParameters) -> None:
     stalling = reference.replace(T_loss=2000.0)
     with pytest.raises(AnalysisError, match="cannot idle"):
-        simulate(stalling, TestPlan(amplitudes_nm=(5.0,), duration_s=5.0))
+        simulate(stalling, TestPlan(amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=5.0))
 
 
 def test_stiff_parameter_sets_stay_stable(reference: DrivetrainParameters) -> None:
     """A near-zero J3 (as the identification's bounds allow) is integrated with substeps."""
     stiff = reference.replace(J3=1e-4, c23=2000.0)
-    result = simulate(stiff, TestPlan(amplitudes_nm=(10.0,), duration_s=10.0))
+    result = simulate(stiff, TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=10.0))
     assert np.isfinite(result.speed_rpm).all()
     assert np.abs(result.speed_rpm - 1000).max() < 200
 
@@ -215,7 +219,7 @@ def test_a_tooth_timer_averages_times_and_the_model_need_not_know(
     from dtid.identification.search.objective import nrmse
     from dtid.simulator.vehicle_data import VehicleData
 
-    plan = TestPlan(amplitudes_nm=(10.0,), duration_s=20.0)
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=20.0)
     speeds = simulate(reference, plan, SimulationOptions.clean())
     times = simulate(reference, plan, SimulationOptions.clean(speed_average="times"))
     assert not np.array_equal(speeds.speed_rpm, times.speed_rpm)

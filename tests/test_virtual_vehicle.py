@@ -10,15 +10,15 @@ import can
 import numpy as np
 import pytest
 
+from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.plan import tool_requests as plan_requests
 from dtid.dbc.checksum import verify_checksum
 from dtid.dbc.loader import load_interface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.ecu_requests import RequestReceiver
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.plant_stepper import PlantStepper
 from dtid.simulator.simulate import SimulationOptions, simulate
-from dtid.simulator.simulate import test_requests as plan_requests
 from dtid.simulator.virtual_vehicle import BusFaults, VirtualVehicle
 
 INTERFACE = load_interface()
@@ -30,7 +30,9 @@ def request(value: float, counter: int, t: float = 0.0, enable: int = 1) -> can.
 
 def test_stepper_in_request_periods_reproduces_the_whole_run_bit_for_bit():
     """Segments of one request period, each holding that period's request, are the same run."""
-    plan = TestPlan(amplitudes_nm=(10.0,), duration_s=4.0, settle_s=0.5, pause_s=0.2)
+    plan = TestPlan(
+        amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=4.0, settle_s=0.5, pause_s=0.2
+    )
     options = SimulationOptions.clean()
     whole = simulate(reference_parameters(), plan, options)
     request_t, request_nm = plan_requests(plan)

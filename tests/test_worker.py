@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 import zmq
 
-from dtid.acquisition.config import AcquisitionConfig, PipelineConfig, TestConfig
+from dtid.acquisition.config import AcquisitionConfig, PipelineConfig, TestPlan
 from dtid.acquisition.logfile import read_log, write_log
 from dtid.acquisition.stream import encode_event, samples_roles
 from dtid.cli import main
@@ -47,7 +47,7 @@ BLOCK_S = 0.25
 """Bus time per samples event."""
 BUDGET = SearchSettings(popsize=2, generations=2, polish_evaluations=20, seed=3)
 BUDGET_ARGS = ["--seed", "3", "--generations", "2", "--popsize", "2", "--polish-evaluations", "20"]
-PLAN = TestConfig(amplitudes_nm=(5.0, 10.0), validation_nm=2.0, duration_s=20.0)
+PLAN = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=2.0, duration_s=20.0)
 
 
 @dataclass
@@ -62,7 +62,7 @@ class SimulatedSession:
 
 def _events(frames: Sequence, log_path: Path, session: str) -> SimulatedSession:
     interface = load_interface()
-    plan = PLAN.plan()
+    plan = PLAN
     start = frames[0].timestamp
     times = np.array([f.timestamp for f in frames])
     marks = [(start, "settle", None, None)]
@@ -110,7 +110,7 @@ def _events(frames: Sequence, log_path: Path, session: str) -> SimulatedSession:
 @pytest.fixture(scope="module")
 def session(reference, tmp_path_factory: pytest.TempPathFactory) -> SimulatedSession:
     """The simulated session's events, and its log written from the same frames."""
-    result = simulate(reference, PLAN.plan(), SimulationOptions(), seed=5)
+    result = simulate(reference, PLAN, SimulationOptions(), seed=5)
     frames = simulation_frames(result, load_interface())
     for frame in frames:
         frame.timestamp += BASE_S

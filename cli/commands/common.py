@@ -3,16 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
-from collections.abc import Sequence
 from pathlib import Path
 
-from dtid.dbc.loader import load_interface
-from dtid.errors import ConfigError, RecordingError
-from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
-from dtid.identification.model.test_setup import MeasuredTest
-from dtid.identification.samples.recording import load_recording
 from dtid.simulator.vehicle_data import VehicleData, load_vehicle_data
 
 
@@ -51,29 +44,3 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text} must be a number > 0")
     return value
-
-
-def write_json(path: Path, document: object) -> None:
-    """Write a JSON document, naming the file when that fails."""
-    try:
-        path.write_text(json.dumps(document, indent=1, allow_nan=False) + "\n")
-    except OSError as error:
-        raise RecordingError(f"cannot write {path}: {error.strerror}") from None
-    except ValueError as error:
-        raise ConfigError(f"cannot write {path}: {error}") from None
-
-
-def measured_tests(
-    recordings: Sequence[Path],
-    dbc: Path | None,
-    signals: Path | None,
-    vehicle: VehicleData | None = None,
-) -> list[MeasuredTest]:
-    """Load recordings and estimate their runs' FRFs for the identification commands."""
-    interface = load_interface(dbc, signals)
-    return [
-        MeasuredTest.from_data(
-            str(path), load_recording(path, interface).test_data(), DEFAULT_RESOLUTION_HZ, vehicle
-        )
-        for path in recordings
-    ]

@@ -28,7 +28,7 @@ from dtid.acquisition.config import (
     SafetyConfig,
 )
 from dtid.acquisition.daemon import Daemon
-from dtid.cli.commands.common import positive_float, write_json
+from dtid.cli.commands.common import positive_float
 from dtid.cli.commands.frf import summary_line
 from dtid.dbc.loader import load_interface
 from dtid.errors import AnalysisError, RecordingError
@@ -39,6 +39,7 @@ from dtid.identification.samples.recording import load_recording
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.parameterization import theta_from_parameters
 from dtid.identification.service.worker import Worker, WorkerOptions, leave_a_core_to_the_bus
+from dtid.jsonfile import write_json
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.plant_stepper import PlantStepper
 from dtid.simulator.virtual_vehicle import VirtualVehicle
@@ -129,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     )
     vehicle_thread = threading.Thread(target=vehicle.run, kwargs={"stop": stop}, daemon=True)
     vehicle_thread.start()
-    plan = config.test.plan()
+    plan = config.test
     print(
         f"reference vehicle on a virtual bus at {args.speedup:g}x real time: "
         f"{plan.end_s:.0f} s of chirp test "

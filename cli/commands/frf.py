@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from dtid.cli.commands.common import add_interface_options, positive_float, write_json
+from dtid.cli.commands.common import add_interface_options, positive_float
 from dtid.dbc.loader import load_interface
-from dtid.errors import AnalysisError
-from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate, estimate_frf
-from dtid.identification.frf.runs import find_runs
+from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate
 from dtid.identification.samples.recording import load_recording
+from dtid.jsonfile import write_json
+from dtid.workflow import frf
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -49,16 +49,12 @@ def estimate_all(
 ) -> list[tuple[Path, FrfEstimate]]:
     """FRFs of every chirp run of every recording, in order."""
     interface = load_interface(args.dbc, args.signals)
-    results = []
-    for path in recordings:
-        data = load_recording(path, interface).test_data()
-        runs = find_runs(data.test_torque)
-        if not runs:
-            raise AnalysisError(f"{path}: no chirp in the test torque, so no FRF can be estimated")
-        for run in runs:
-            band = tuple(args.band) if args.band else None
-            results.append((path, estimate_frf(data, run, args.resolution, band)))
-    return results
+    band = tuple(args.band) if args.band else None
+    return [
+        (path, estimate)
+        for path in recordings
+        for estimate in frf(load_recording(path, interface), args.resolution, band)
+    ]
 
 
 def summary_line(estimate: FrfEstimate) -> str:

@@ -19,16 +19,15 @@ from typing import Any
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
-    measured_tests,
     positive_float,
     vehicle_data,
-    write_json,
 )
 from dtid.errors import ConfigError
-from dtid.identification.pipeline import OPERATING_POINT, run_identification
+from dtid.identification.pipeline import OPERATING_POINT
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.parameterization import PRIOR_SPAN, THETA_NAMES
 from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.workflow import identify
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -223,10 +222,12 @@ def run(args: argparse.Namespace) -> int:
     settings = search_settings(args)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
     vehicle = vehicle_data(args)
-    tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle)
-    report = run_identification(
-        tests,
-        prior,
+    report = identify(
+        args.recordings,
+        dbc=args.dbc,
+        signals=args.signals,
+        vehicle=vehicle,
+        prior=prior,
         fixed=fixed,
         bounds=bounds,
         span=None if args.span is None else args.span / 100,
@@ -238,10 +239,8 @@ def run(args: argparse.Namespace) -> int:
     print_report(report.as_dict(), fixed)
     print(vehicle.describe())
     if args.json:
-        write_json(args.json, report.as_dict())
+        report.to_json(args.json)
     if args.plot:
-        from dtid.identification.plots import plot_fit
-
-        plot_fit(*report.fit_curves(), args.plot)
+        report.plot(args.plot)
         print(f"plot: {args.plot}")
     return 0

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from dtid.cli.commands.common import add_interface_options, write_json
+from dtid.cli.commands.common import add_interface_options
 from dtid.dbc.loader import load_interface
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.samples.recording import Recording, load_recording
+from dtid.jsonfile import write_json
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

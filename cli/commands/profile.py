@@ -13,15 +13,15 @@ from pathlib import Path
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
-    measured_tests,
     vehicle_data,
-    write_json,
 )
 from dtid.cli.commands.identify import add_bounds_options, parse_bounds, parse_fixed
 from dtid.errors import ConfigError
 from dtid.identification.pipeline import run_identification
 from dtid.identification.setups import profile_setup, setup
+from dtid.jsonfile import write_json
 from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.workflow import measured_tests
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

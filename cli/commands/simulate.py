@@ -6,9 +6,9 @@ import argparse
 from pathlib import Path
 
 from dtid.acquisition.logfile import write_log
+from dtid.acquisition.plan import TestPlan
 from dtid.cli.commands.common import add_interface_options, positive_float
 from dtid.dbc.loader import load_interface
-from dtid.simulator.chirp import TestPlan
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import load_parameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -66,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     parameters = load_parameters(args.params) if args.params else reference_parameters()
     plan = TestPlan(
         amplitudes_nm=tuple(args.amplitudes),
+        validation_nm=0.0,
         f1_hz=args.f1,
         f2_hz=args.f2,
         duration_s=args.duration,

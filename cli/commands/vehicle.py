@@ -11,8 +11,9 @@ from threading import Event
 
 from dtid.acquisition.bus import open_bus
 from dtid.acquisition.config import load_config
-from dtid.cli.commands.common import positive_float, write_json
+from dtid.cli.commands.common import positive_float
 from dtid.dbc.loader import load_interface
+from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import load_parameters, reference_parameters
 from dtid.simulator.plant_stepper import PlantStepper

@@ -27,7 +27,7 @@ from scipy import interpolate, signal
 
 from dtid.errors import AnalysisError
 from dtid.identification.frf.runs import ChirpRun
-from dtid.identification.model.sensor_response import speed_filter_gain, torque_hold_gain
+from dtid.identification.frf.sensor_response import speed_filter_gain, torque_hold_gain
 from dtid.identification.samples.testdata import Series, TestData
 
 DEFAULT_RESOLUTION_HZ = 0.25

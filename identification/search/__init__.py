@@ -1,1 +1,2 @@
-"""The search: eq. (17)'s objective, the parameter scaling and the global then local search."""
+"""The search: eq. (17)'s objective, the parameter scaling, its sensitivities and the global then
+local search."""

@@ -18,7 +18,7 @@ box in four stages, each on a more exact and dearer objective (the model's reali
    cheaper objectives' minima lie a little apart (on the accuracy trial's truth 4, the gear
    play's by 0.06 of its box on one realization, 0.02 on two);
 4. Levenberg-Marquardt steps on the full objective, from a Jacobian whose differences are sized
-   above the model's Monte Carlo jitter (:mod:`dtid.identification.uncertainty.sensitivity`):
+   above the model's Monte Carlo jitter (:mod:`dtid.identification.search.sensitivity`):
    Nelder-Mead crawls along the shallow, coupled directions of the dampings and the friction, where
    the jitter of the objective is as large as its slope, and stops short of the minimum. A step
    is kept only if it also fits better on fresh draws of the model (:func:`confirmed`), so
@@ -53,7 +53,7 @@ from dtid.identification.model.response import ModelTest, model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.search.objective import nrmse, summed_nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, Parameterization
-from dtid.identification.uncertainty.sensitivity import jacobian
+from dtid.identification.search.sensitivity import jacobian
 from dtid.simulator.parameters import DrivetrainParameters
 
 logger = logging.getLogger(__name__)
@@ -536,7 +536,7 @@ def _levenberg_marquardt(
     """Stage 4: Levenberg-Marquardt steps on eq. (17)'s weighted residuals.
 
     Each step takes the Jacobian with sized differences
-    (:func:`dtid.identification.uncertainty.sensitivity. jacobian`), solves for the steps of all
+    (:func:`dtid.identification.search.sensitivity. jacobian`), solves for the steps of all
     :data:`LM_DAMPINGS` and evaluates them in one batch; the best is kept if it lowers eq. (17) and
     holds on fresh draws (:func:`confirmed`), else the search ends. Nelder-Mead crawls along the
     shallow, coupled directions of the dampings and the friction; this step crosses them.

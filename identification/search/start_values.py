@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from dtid.identification.frf.closed_loop import FrfEstimate
-from dtid.identification.model.sensor_response import stroke_hold_gain
+from dtid.identification.frf.sensor_response import stroke_hold_gain
 from dtid.identification.search.parameterization import theta_from_parameters
 from dtid.simulator.parameters import DrivetrainParameters
 

@@ -500,7 +500,7 @@ class Worker:
 
     def _conclude(self, session: _Session, live: LiveSession, report: IdentificationReport) -> None:
         """Publish the result, write it and plot it."""
-        from dtid.cli.commands.common import write_json
+        from dtid.jsonfile import write_json
 
         document = report.as_dict()
         session.result = document

@@ -1,1 +1,1 @@
-"""Uncertainty of the identified parameters: sensitivities and likelihood profiles."""
+"""Uncertainty of the identified parameters: likelihood profiles and their verdicts."""

@@ -42,7 +42,7 @@ has no such noise and is evaluated once.
 
 Each re-optimisation starts from the nearest solved point and from the optimum, each both as
 it is and moved along the valley the held parameter opens
-(:func:`dtid.identification.uncertainty.sensitivity. compensation`): the valleys are narrow and
+(:func:`dtid.identification.search.sensitivity. compensation`): the valleys are narrow and
 curved, and a mass ratio 1.7 % of its box off the optimum raised eq. (17) from 0.070 to 0.24 where
 the start was not moved, 0.072 where it was. On truth 4, six of the eight intervals that closed
 missed the truth before these two measures and one (d23's lower end, 0.41 for 0.37) after; with the
@@ -74,7 +74,7 @@ from dtid.identification.model.response import model_drv_db
 from dtid.identification.search.identify import Objective
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import Parameterization
-from dtid.identification.uncertainty.sensitivity import compensation
+from dtid.identification.search.sensitivity import compensation
 
 CONFIDENCE = 0.95
 THRESHOLD = float(stats.chi2.ppf(CONFIDENCE, df=1))

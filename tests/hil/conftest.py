@@ -59,13 +59,13 @@ def compiled_kernels() -> None:
     and the first chirp's coherence fell to 0.32. The scenarios test the running product, not
     its first start after an install.
     """
-    from dtid.simulator.chirp import TestPlan
+    from dtid.acquisition.plan import TestPlan
     from dtid.simulator.parameters import reference_parameters
     from dtid.simulator.plant_stepper import PlantStepper
     from dtid.simulator.simulate import SimulationOptions, replay_batch, simulate
 
     reference = reference_parameters()
-    result = simulate(reference, TestPlan(amplitudes_nm=(1.0,), duration_s=2.0))
+    result = simulate(reference, TestPlan(amplitudes_nm=(1.0,), validation_nm=0.0, duration_s=2.0))
     t, value = result.request_t, result.test_torque_nm
     params = np.repeat(reference.as_array()[None], 2, axis=0)
     replay_batch(params, t, value, np.ones(2), 1.0, SimulationOptions())

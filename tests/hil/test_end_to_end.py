@@ -20,11 +20,11 @@ import pytest
 import dtid.dbc
 from dtid.acquisition.logfile import read_log
 from dtid.cli import main as dtid
-from dtid.cli.commands.common import measured_tests
 from dtid.dbc.loader import load_interface
 from dtid.identification.pipeline import run_identification
 from dtid.identification.search.identify import SearchSettings
 from dtid.simulator.parameters import reference_parameters
+from dtid.workflow import measured_tests
 
 pytestmark = pytest.mark.hil
 

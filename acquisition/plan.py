@@ -1,14 +1,17 @@
-"""The chirp test torque, paper eq. (11), and the test plan that strings chirps together.
+"""The test plan: the chirps of paper eq. (11) at idle, and the requests that carry them.
 
-The test torque is requested by the tool over CAN at a fixed rate (``request_period_s``); the
-engine ECU holds the last request it received. :func:`test_torque` evaluates exactly that held
-value, so the simulator and the frames written for the tool's messages agree sample for sample.
+One definition for every side of the test: the daemon's ``[test]`` section is a
+:class:`TestPlan`, the daemon sends its requests (:func:`tool_requests`), and the simulator plays
+the same plan (its kernel evaluates :func:`requested_test_torque`). The test torque is requested
+by the tool over CAN at a fixed rate (``request_period_s``); the engine ECU holds the last request
+it received. :func:`requested_test_torque` evaluates exactly that held value, so the simulator
+and the frames written for the tool's messages agree sample for sample.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numba
 import numpy as np
@@ -51,16 +54,19 @@ class Chirp:
 class TestPlan:
     """A chirp test at idle: settle, then one chirp per amplitude with a pause between them.
 
-    The defaults are the paper's test: three amplitudes (2, 5 and 10 N*m; 5 and 10 identify, 2
-    validates) swept from 1 to 15 Hz, the band measurable at 1000 rpm below the 16.7 Hz Nyquist
-    frequency of the once-per-stroke mean torque. 60 s per chirp gives about 15 Welch segments of
-    4 s (0.25 Hz resolution) per run. The 3 s pauses let the idle controller settle; the tool sends
-    its request at 100 Hz, well above the band.
+    The defaults are the paper's test: 5 and 10 N*m identify, then 2 N*m validates, each swept
+    from 1 to 15 Hz, the band measurable at 1000 rpm below the 16.7 Hz Nyquist frequency of the
+    once-per-stroke mean torque. 60 s per chirp gives about 15 Welch segments of 4 s (0.25 Hz
+    resolution) per run. The 3 s pauses let the idle controller settle; the tool sends its
+    request at 100 Hz, well above the band. The daemon's ``[test]`` section holds these fields.
 
     Attributes
     ----------
     amplitudes_nm
-        A_test of each chirp in order, N*m.
+        A_test of the identification chirps, chirped in this order, N*m.
+    validation_nm
+        A_test of the validation chirp after them, N*m; 0 for none. (Which runs identify is
+        the identification's choice: by default the two largest amplitudes.)
     f1_hz, f2_hz
         Chirp start and end frequency, Hz.
     duration_s
@@ -75,7 +81,8 @@ class TestPlan:
 
     __test__ = False  # not a pytest test class, despite the name
 
-    amplitudes_nm: tuple[float, ...] = (2.0, 5.0, 10.0)
+    amplitudes_nm: tuple[float, ...] = (5.0, 10.0)
+    validation_nm: float = 2.0
     f1_hz: float = 1.0
     f2_hz: float = 15.0
     duration_s: float = 60.0
@@ -97,6 +104,10 @@ class TestPlan:
         for amplitude in self.amplitudes_nm:
             if not (math.isfinite(amplitude) and amplitude > 0):
                 raise ConfigError(f"test plan: chirp amplitudes must be > 0 N*m, got {amplitude}")
+        if not (math.isfinite(self.validation_nm) and self.validation_nm >= 0):
+            raise ConfigError(
+                f"test plan: validation_nm must be >= 0 N*m (0: none), got {self.validation_nm}"
+            )
         if self.f2_hz <= self.f1_hz:
             raise ConfigError(f"test plan: f2 ({self.f2_hz} Hz) must be above f1 ({self.f1_hz} Hz)")
         if self.f2_hz >= 0.5 / self.request_period_s:
@@ -106,10 +117,26 @@ class TestPlan:
             )
         chirps = []
         start = self.settle_s
-        for amplitude in self.amplitudes_nm:
+        for amplitude in self.levels:
             chirps.append(Chirp(start, self.duration_s, self.f1_hz, self.f2_hz, float(amplitude)))
             start += self.duration_s + self.pause_s
         object.__setattr__(self, "chirps", tuple(chirps))
+
+    def as_dict(self) -> dict[str, object]:
+        """The plan's fields (the ``[test]`` keys; amplitudes as a list), for JSON."""
+        return {
+            f.name: list(getattr(self, f.name))
+            if f.name == "amplitudes_nm"
+            else getattr(self, f.name)
+            for f in fields(self)
+            if f.init
+        }
+
+    @property
+    def levels(self) -> tuple[float, ...]:
+        """The amplitude of every chirp in the order they run (the validation chirp last), N*m."""
+        validation = (float(self.validation_nm),) if self.validation_nm else ()
+        return tuple(float(a) for a in self.amplitudes_nm) + validation
 
     @property
     def end_s(self) -> float:
@@ -158,3 +185,9 @@ def requested_test_torques(
     for i in range(times.shape[0]):
         out[i] = requested_test_torque(times[i], schedule, request_period)
     return out
+
+
+def tool_requests(plan: TestPlan) -> tuple[np.ndarray, np.ndarray]:
+    """The tool's test-torque requests over the whole test: times, s, and values, N*m."""
+    times = np.arange(0.0, plan.end_s, plan.request_period_s)
+    return times, requested_test_torques(times, plan.schedule(), plan.request_period_s)

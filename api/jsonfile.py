@@ -1,0 +1,28 @@
+"""JSON documents the tool writes (``--json`` outputs, the worker's files; docs/schemas.md)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from dtid.errors import ConfigError, RecordingError
+
+
+def write_json(path: Path, document: object) -> None:
+    """Write a JSON document (strict: no NaN or infinity), naming the file when that fails.
+
+    Raises
+    ------
+    RecordingError
+        If the file cannot be written.
+    ConfigError
+        If the document holds a value JSON cannot carry.
+    """
+    try:
+        text = json.dumps(document, indent=1, allow_nan=False) + "\n"
+    except ValueError as error:
+        raise ConfigError(f"cannot write {path}: {error}") from None
+    try:
+        Path(path).write_text(text)
+    except OSError as error:
+        raise RecordingError(f"cannot write {path}: {error.strerror}") from None
