@@ -1,4 +1,4 @@
-"""Paths of the data files packaged with :mod:`dbc`."""
+"""Paths of the data files packaged with :mod:`dtid.dbc`."""
 
 from pathlib import Path
 

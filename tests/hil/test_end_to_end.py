@@ -17,10 +17,10 @@ import cantools
 import numpy as np
 import pytest
 
-import dtid.dbc
 from dtid.acquisition.logfile import read_log
 from dtid.cli import main as dtid
 from dtid.dbc.loader import load_interface
+from dtid.dbc.resources import DEFAULT_DBC
 from dtid.identification.pipeline import run_identification
 from dtid.identification.search.identify import SearchSettings
 from dtid.simulator.parameters import reference_parameters
@@ -62,7 +62,7 @@ model draws (0.183 against 0.199). The dampings are reported there, not asserted
 
 def count_faults(log: Path) -> tuple[int, int, int]:
     """Lost, duplicated and cut frames of the vehicle's counted messages in a log."""
-    database = cantools.database.load_file(Path(dtid.dbc.__file__).parent / "drivetrain.dbc")
+    database = cantools.database.load_file(DEFAULT_DBC)
     counters = {"EngineSpeed": "CrankEventCounter", "EngineMeanTorque": "StrokeCounter"}
     counters["EngineTorqueRequest"] = "RequestCounter"
     lost = duplicated = cut = 0
