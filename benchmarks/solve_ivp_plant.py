@@ -335,7 +335,7 @@ def simulate_solve_ivp(
         else options.tables()
     )
     request_t, request_nm = tool_requests(plan)
-    sigma_cv, sigma_speed, sigma_torque = options.sigmas()
+    sigma_cv, sigma_speed, sigma_torque = options.sigmas()[:3]
     n_speed_max, n_stroke_max = output_capacity(plan.end_s, controller)
     rng = np.random.default_rng(seed)
     cv_noise = rng.standard_normal(n_stroke_max)

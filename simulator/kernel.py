@@ -39,6 +39,8 @@ set-point (a stall or run-away of a non-physical parameter set), 2 an output buf
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 
@@ -105,14 +107,94 @@ STATE_SIZE = O_REQUESTS + N_RING
 """Length of a plant state vector."""
 
 
-@numba.njit(cache=True)
-def initial_state(
-    params: np.ndarray,
-    controller: np.ndarray,
-    reference: np.ndarray,
-    drive: np.ndarray,
-    test_nm: float,
-) -> np.ndarray:
+class Loop(NamedTuple):
+    """What every job of a run shares: the engine's tables, the ECU and what drives it.
+
+    Built in one place, :meth:`dtid.simulator.simulate.SimulationOptions.loop`.
+
+    Attributes
+    ----------
+    combustion_shape, compression, inertia
+        Engine tables of :class:`dtid.simulator.engine.EngineTables`.
+    controller
+        :meth:`dtid.simulator.controller.IdleController.as_array` (layout ``C_*``).
+    reference
+        (>= 1,) the controller's reference speed per speed sample of the run, rpm (the last
+        holds after the end).
+    drive
+        Torque added to each stroke's request, per stroke of the run, N*m (the last holds after
+        the end; empty: none).
+    request_t, request_nm
+        Test-torque requests as the ECU receives them: times (s, increasing) and values (N*m);
+        the ECU holds the last one received at each speed sample (zero before the first).
+    sigmas
+        Standard deviations: relative combustion variation of T_m, speed noise in rpm, torque
+        noise in N*m; then 1 for a speed sensor that averages times (a tooth timer: the
+        window's angle over its time) instead of the step speeds (eq. 9), if given.
+    """
+
+    combustion_shape: np.ndarray
+    compression: np.ndarray
+    inertia: np.ndarray
+    controller: np.ndarray
+    reference: np.ndarray
+    drive: np.ndarray
+    request_t: np.ndarray
+    request_nm: np.ndarray
+    sigmas: np.ndarray
+
+
+class Job(NamedTuple):
+    """One run of the plant: its parameters, scale, substeps, noise draws and outputs.
+
+    :class:`Jobs` holds many, each field with a leading job axis.
+
+    Attributes
+    ----------
+    params
+        Drivetrain parameters in the order of :data:`dtid.simulator.parameters.NAMES`, SI units.
+    request_scale
+        Factor on the request values (a unit chirp scaled to an amplitude).
+    n_sub
+        Substeps per angle step (>= 1).
+    cv_noise
+        Standard normal draws, one per working stroke started.
+    speed_noise
+        Standard normal draws, one per speed sample.
+    torque_noise
+        Standard normal draws, one per stroke reported.
+    out_speed
+        Output (n_max, 5), columns :data:`SPEED_COLUMNS`, from row 0.
+    out_torque
+        Output (n_max, 3), columns :data:`TORQUE_COLUMNS`, from row 0.
+    """
+
+    params: np.ndarray
+    request_scale: float
+    n_sub: int
+    cv_noise: np.ndarray
+    speed_noise: np.ndarray
+    torque_noise: np.ndarray
+    out_speed: np.ndarray
+    out_torque: np.ndarray
+
+
+class Jobs(NamedTuple):
+    """Many :class:`Job` s for :func:`run_plant_batch`: each field of a job with a leading job
+    axis (``request_scale`` and ``n_sub`` as arrays)."""
+
+    params: np.ndarray
+    request_scale: np.ndarray
+    n_sub: np.ndarray
+    cv_noise: np.ndarray
+    speed_noise: np.ndarray
+    torque_noise: np.ndarray
+    out_speed: np.ndarray
+    out_torque: np.ndarray
+
+
+@numba.njit(cache=True, nogil=True)
+def initial_state(params: np.ndarray, loop: Loop, test_nm: float) -> np.ndarray:
     """The plant at rest at its reference speed, t = 0, before the first angle step.
 
     All masses turn at the first reference speed, the couplings are relaxed, every cylinder
@@ -120,6 +202,7 @@ def initial_state(
     mean drive, within the controller's limits) and the ECU's request is that plus ``test_nm``,
     the test torque held at t = 0 (N*m).
     """
+    controller, reference, drive = loop.controller, loop.reference, loop.drive
     t_loss, gain = params[10], params[11]
     u_min, u_max = controller[C_U_MIN], controller[C_U_MAX]
     w_set = reference[0] / RPM_PER_RAD_S
@@ -140,28 +223,8 @@ def initial_state(
     return state
 
 
-@numba.njit(cache=True)
-def advance(
-    state: np.ndarray,
-    params: np.ndarray,
-    combustion_shape: np.ndarray,
-    compression: np.ndarray,
-    inertia: np.ndarray,
-    controller: np.ndarray,
-    reference: np.ndarray,
-    drive: np.ndarray,
-    request_t: np.ndarray,
-    request_nm: np.ndarray,
-    request_scale: float,
-    t_end: float,
-    n_sub: int,
-    sigmas: np.ndarray,
-    cv_noise: np.ndarray,
-    speed_noise: np.ndarray,
-    torque_noise: np.ndarray,
-    out_speed: np.ndarray,
-    out_torque: np.ndarray,
-) -> tuple[int, int, int]:
+@numba.njit(cache=True, nogil=True)
+def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int, int, int]:
     """Advance the plant from ``state`` until its time reaches ``t_end``; update ``state``.
 
     Parameters
@@ -169,47 +232,25 @@ def advance(
     state
         Plant state (:func:`initial_state`), updated in place to the first angle step at or
         after ``t_end``, so that consecutive calls continue one run exactly.
-    params
-        Drivetrain parameters in the order of :data:`dtid.simulator.parameters.NAMES`, SI units.
-    combustion_shape, compression, inertia
-        Engine tables of :class:`dtid.simulator.engine.EngineTables`.
-    controller
-        :meth:`dtid.simulator.controller.IdleController.as_array` (layout ``C_*``).
-    reference
-        (>= 1,) the controller's reference speed per speed sample of the run, rpm (the last
-        holds after the end).
-    drive
-        Torque added to each stroke's request, per stroke of the run, N*m (the last holds after
-        the end; empty: none).
-    request_t, request_nm
-        Test-torque requests as the ECU receives them: times (s, increasing) and values (N*m);
-        the ECU holds the last one received at each speed sample (zero before the first).
-    request_scale
-        Factor on the request values (a unit chirp scaled to an amplitude).
+    loop
+        The engine, the ECU and what drives it (:class:`Loop`).
+    job
+        The run's parameters, noise draws (those of this call: one per stroke started, per
+        speed sample and per stroke reported) and outputs (:class:`Job`).
     t_end
         Time to advance to, s.
-    n_sub
-        Substeps per angle step (>= 1).
-    sigmas
-        Standard deviations: relative combustion variation of T_m, speed noise in rpm, torque
-        noise in N*m; then 1 for a speed sensor that averages times (a tooth timer: the
-        window's angle over its time) instead of the step speeds (eq. 9), if given.
-    cv_noise
-        Standard normal draws, one per working stroke started in this call.
-    torque_noise
-        Standard normal draws, one per stroke reported in this call.
-    speed_noise
-        Standard normal draws, one per speed sample of this call.
-    out_speed
-        Output (n_max, 5), columns :data:`SPEED_COLUMNS`, from row 0.
-    out_torque
-        Output (n_max, 3), columns :data:`TORQUE_COLUMNS`, from row 0.
 
     Returns
     -------
     tuple of int
         Number of speed samples, number of torque samples, status.
     """
+    combustion_shape, compression, inertia = loop.combustion_shape, loop.compression, loop.inertia
+    controller, reference, drive, sigmas = loop.controller, loop.reference, loop.drive, loop.sigmas
+    request_t, request_nm = loop.request_t, loop.request_nm
+    params, request_scale, n_sub = job.params, job.request_scale, job.n_sub
+    cv_noise, speed_noise, torque_noise = job.cv_noise, job.speed_noise, job.torque_noise
+    out_speed, out_torque = job.out_speed, job.out_torque
     j1, j2, j3 = params[0], params[1], params[2]
     c12, c23, d12, d23 = params[3], params[4], params[5], params[6]
     tc12, half12, half23 = params[7], 0.5 * params[8], 0.5 * params[9]
@@ -347,28 +388,9 @@ def advance(
     return n_speed, n_torque, status
 
 
-@numba.njit(cache=True)
-def run_plant(
-    params: np.ndarray,
-    combustion_shape: np.ndarray,
-    compression: np.ndarray,
-    inertia: np.ndarray,
-    controller: np.ndarray,
-    reference: np.ndarray,
-    drive: np.ndarray,
-    request_t: np.ndarray,
-    request_nm: np.ndarray,
-    request_scale: float,
-    t_end: float,
-    n_sub: int,
-    sigmas: np.ndarray,
-    cv_noise: np.ndarray,
-    speed_noise: np.ndarray,
-    torque_noise: np.ndarray,
-    out_speed: np.ndarray,
-    out_torque: np.ndarray,
-) -> tuple[int, int, int]:
-    """Simulate one test from rest at the set-point; fill ``out_speed`` and ``out_torque``.
+@numba.njit(cache=True, nogil=True)
+def run_plant(loop: Loop, job: Job, t_end: float) -> tuple[int, int, int]:
+    """Simulate one test from rest at the set-point; fill the job's outputs.
 
     :func:`initial_state` followed by one :func:`advance` to ``t_end``; see there for the
     parameters.
@@ -378,84 +400,34 @@ def run_plant(
     tuple of int
         Number of speed samples, number of torque samples, status.
     """
+    request_t, request_nm = loop.request_t, loop.request_nm
     n_zero = 0  # requests received before the first step
     while n_zero < request_t.shape[0] and request_t[n_zero] <= 0.0:
         n_zero += 1
-    test = request_scale * request_nm[n_zero - 1] if n_zero > 0 else 0.0
-    state = initial_state(params, controller, reference, drive, test)
-    return advance(
-        state,
-        params,
-        combustion_shape,
-        compression,
-        inertia,
-        controller,
-        reference,
-        drive,
-        request_t,
-        request_nm,
-        request_scale,
-        t_end,
-        n_sub,
-        sigmas,
-        cv_noise,
-        speed_noise,
-        torque_noise,
-        out_speed,
-        out_torque,
-    )
+    test = job.request_scale * request_nm[n_zero - 1] if n_zero > 0 else 0.0
+    state = initial_state(job.params, loop, test)
+    return advance(state, loop, job, t_end)
 
 
-@numba.njit(cache=True, parallel=True)
-def run_plant_batch(
-    params: np.ndarray,
-    combustion_shape: np.ndarray,
-    compression: np.ndarray,
-    inertia: np.ndarray,
-    controller: np.ndarray,
-    reference: np.ndarray,
-    drive: np.ndarray,
-    request_t: np.ndarray,
-    request_nm: np.ndarray,
-    request_scale: np.ndarray,
-    t_end: float,
-    n_sub: np.ndarray,
-    sigmas: np.ndarray,
-    cv_noise: np.ndarray,
-    speed_noise: np.ndarray,
-    torque_noise: np.ndarray,
-    out_speed: np.ndarray,
-    out_torque: np.ndarray,
-    counts: np.ndarray,
-) -> None:
+@numba.njit(cache=True, parallel=True, nogil=True)
+def run_plant_batch(loop: Loop, jobs: Jobs, t_end: float, counts: np.ndarray) -> None:
     """Run :func:`run_plant` for many jobs in parallel over the cores.
 
-    All jobs share the controller, reference, drive and request tables; every argument that
-    differs per job has a leading job axis: ``params`` (n, 12), ``request_scale`` (n,),
-    ``n_sub`` (n,), the noise draws and the outputs. ``counts`` (n, 3) receives each job's
-    speed count, torque count and status.
+    All jobs share the ``loop``; ``counts`` (n, 3) receives each job's speed count, torque
+    count and status.
     """
-    for job in numba.prange(params.shape[0]):
-        n_speed, n_torque, status = run_plant(
-            params[job],
-            combustion_shape,
-            compression,
-            inertia,
-            controller,
-            reference,
-            drive,
-            request_t,
-            request_nm,
-            request_scale[job],
-            t_end,
-            n_sub[job],
-            sigmas,
-            cv_noise[job],
-            speed_noise[job],
-            torque_noise[job],
-            out_speed[job],
-            out_torque[job],
+    for j in numba.prange(jobs.params.shape[0]):
+        job = Job(
+            jobs.params[j],
+            jobs.request_scale[j],
+            jobs.n_sub[j],
+            jobs.cv_noise[j],
+            jobs.speed_noise[j],
+            jobs.torque_noise[j],
+            jobs.out_speed[j],
+            jobs.out_torque[j],
         )
-        counts[job, 0] = n_speed
-        counts[job, 1] = n_torque
-        counts[job, 2] = status
+        n_speed, n_torque, status = run_plant(loop, job, t_end)
+        counts[j, 0] = n_speed
+        counts[j, 1] = n_torque
+        counts[j, 2] = status

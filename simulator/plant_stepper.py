@@ -11,7 +11,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from dtid.simulator.kernel import S_T, STATUS_BUFFER_FULL, STATUS_OK, advance, initial_state
+from dtid.simulator.kernel import (
+    S_T,
+    STATUS_BUFFER_FULL,
+    STATUS_OK,
+    Job,
+    advance,
+    initial_state,
+)
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, output_capacity, substeps
 
@@ -38,16 +45,10 @@ class PlantStepper:
         self.options = options or SimulationOptions()
         self.parameters = parameters
         self._params = parameters.as_array()
-        self._tables = self.options.tables()
-        self._controller = self.options.controller.as_array()
-        self._reference = self.options.controller.reference()
-        self._drive = np.zeros(0)
-        self._sigmas = self.options.sigmas()
+        self._loop = self.options.loop(np.zeros(1), np.zeros(1))
         self._n_sub = substeps(self._params, self.options.controller)
         self._rng = np.random.default_rng(seed)
-        self._state = initial_state(
-            self._params, self._controller, self._reference, self._drive, 0.0
-        )
+        self._state = initial_state(self._params, self._loop, 0.0)
         self.stalled = False
 
     @property
@@ -57,7 +58,7 @@ class PlantStepper:
 
     def set_setpoint(self, setpoint_rpm: float) -> None:
         """Change the idle controller's set-point, rpm (a disturbance for fault tests)."""
-        self._reference = np.array([setpoint_rpm])
+        self._loop = self._loop._replace(reference=np.array([setpoint_rpm], dtype=np.float64))
 
     def advance(self, t_end: float, test_nm: float) -> tuple[np.ndarray, np.ndarray]:
         """Advance to ``t_end`` with the ECU holding the test torque ``test_nm``.
@@ -83,27 +84,20 @@ class PlantStepper:
         n_speed_max, n_stroke_max = output_capacity(duration, self.options.controller)
         out_speed = np.empty((n_speed_max, 5))
         out_torque = np.empty((n_stroke_max, 3))
-        n_speed, n_torque, status = advance(
-            self._state,
+        loop = self._loop._replace(
+            request_t=np.array([self.time_s]), request_nm=np.array([float(test_nm)])
+        )
+        job = Job(
             self._params,
-            self._tables.combustion_shape,
-            self._tables.compression,
-            self._tables.inertia,
-            self._controller,
-            self._reference,
-            self._drive,
-            np.array([self.time_s]),
-            np.array([test_nm]),
             1.0,
-            t_end,
             self._n_sub,
-            self._sigmas,
             self._rng.standard_normal(n_stroke_max),
             self._rng.standard_normal(n_speed_max),
             self._rng.standard_normal(n_stroke_max),
             out_speed,
             out_torque,
         )
+        n_speed, n_torque, status = advance(self._state, loop, job, t_end)
         if status == STATUS_BUFFER_FULL:
             raise RuntimeError("plant stepper: output buffer too small for the segment")
         self.stalled = status != STATUS_OK

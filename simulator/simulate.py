@@ -27,6 +27,9 @@ from dtid.simulator.kernel import (
     MIN_SPEED_RATIO,
     STATUS_OK,
     STATUS_SPEED_RANGE,
+    Job,
+    Jobs,
+    Loop,
     run_plant,
     run_plant_batch,
 )
@@ -106,6 +109,53 @@ class SimulationOptions:
     def tables(self) -> EngineTables:
         """Engine tables for these options."""
         return engine_tables(self.engine) if self.pulsation else EngineTables.disabled()
+
+    def loop(
+        self,
+        request_t: np.ndarray,
+        request_nm: np.ndarray,
+        reference: np.ndarray | None = None,
+        drive: np.ndarray | None = None,
+    ) -> Loop:
+        """The kernels' shared arguments (:class:`dtid.simulator.kernel.Loop`) for these options:
+        the one place they are built.
+
+        Parameters
+        ----------
+        request_t, request_nm
+            The test-torque requests the ECU receives: times, s (increasing), values, N*m.
+        reference
+            The controller's reference per speed sample, rpm; its set-point by default (a
+            vehicle's own ECU).
+        drive
+            Torque added to each stroke's request, N*m; none by default.
+
+        Raises
+        ------
+        ConfigError
+            If the arrays do not fit together.
+        """
+        request_t = np.ascontiguousarray(request_t, dtype=np.float64)
+        request_nm = np.ascontiguousarray(request_nm, dtype=np.float64)
+        if request_t.shape != request_nm.shape or np.any(np.diff(request_t) < 0):
+            raise ConfigError("request times must increase and match the request values")
+        reference = self.controller.reference() if reference is None else reference
+        reference = np.ascontiguousarray(reference, dtype=np.float64)
+        drive = np.ascontiguousarray(np.zeros(0) if drive is None else drive, dtype=np.float64)
+        if reference.ndim != 1 or len(reference) == 0 or drive.ndim != 1:
+            raise ConfigError("reference must be a non-empty 1-D array and drive a 1-D array")
+        tables = self.tables()
+        return Loop(
+            tables.combustion_shape,
+            tables.compression,
+            tables.inertia,
+            self.controller.as_array(),
+            reference,
+            drive,
+            request_t,
+            request_nm,
+            self.sigmas(),
+        )
 
 
 @dataclass(frozen=True)
@@ -252,27 +302,17 @@ def simulate(
     speed_noise = rng.standard_normal(n_speed_max)
     out_speed = np.empty((n_speed_max, 5))
     out_torque = np.empty((n_stroke_max, 3))
-    tables = options.tables()
-    n_speed, n_torque, status = run_plant(
+    job = Job(
         params,
-        tables.combustion_shape,
-        tables.compression,
-        tables.inertia,
-        options.controller.as_array(),
-        options.controller.reference(),
-        np.zeros(0),
-        request_t,
-        request_nm,
         1.0,
-        plan.end_s,
         substeps(params, options.controller),
-        options.sigmas(),
         cv_noise,
         speed_noise,
         torque_noise,
         out_speed,
         out_torque,
     )
+    n_speed, n_torque, status = run_plant(options.loop(request_t, request_nm), job, plan.end_s)
     if status == STATUS_SPEED_RANGE:
         raise AnalysisError(
             f"the simulated engine left {MIN_SPEED_RATIO}..{MAX_SPEED_RATIO} times its idle "
@@ -404,10 +444,7 @@ def replay_batch(
     scales = np.ascontiguousarray(scales, dtype=np.float64)
     if scales.shape != (n_jobs,):
         raise ConfigError(f"scales must have shape ({n_jobs},), got {scales.shape}")
-    request_t = np.ascontiguousarray(request_t, dtype=np.float64)
-    request_nm = np.ascontiguousarray(request_nm, dtype=np.float64)
-    if request_t.shape != request_nm.shape or np.any(np.diff(request_t) < 0):
-        raise ConfigError("request times must increase and match the request values")
+    loop = options.loop(request_t, request_nm, reference, drive)
     streams = np.arange(n_jobs) if streams is None else np.asarray(streams, dtype=np.int64)
     if streams.shape != (n_jobs,):
         raise ConfigError(f"streams must have shape ({n_jobs},), got {streams.shape}")
@@ -425,35 +462,10 @@ def replay_batch(
         cv_noise[rows] = sign * rng.standard_normal(n_stroke_max)
         torque_noise[rows] = sign * rng.standard_normal(n_stroke_max)
         speed_noise[rows] = sign * rng.standard_normal(n_speed_max)
-    reference = options.controller.reference() if reference is None else reference
-    reference = np.ascontiguousarray(reference, dtype=np.float64)
-    drive = np.ascontiguousarray(np.zeros(0) if drive is None else drive, dtype=np.float64)
-    if reference.ndim != 1 or len(reference) == 0 or drive.ndim != 1:
-        raise ConfigError("reference must be a non-empty 1-D array and drive a 1-D array")
     n_sub = np.array([substeps(row, options.controller) for row in params], dtype=np.int64)
     out_speed = np.empty((n_jobs, n_speed_max, 5))
     out_torque = np.empty((n_jobs, n_stroke_max, 3))
     counts = np.zeros((n_jobs, 3), dtype=np.int64)
-    tables = options.tables()
-    run_plant_batch(
-        params,
-        tables.combustion_shape,
-        tables.compression,
-        tables.inertia,
-        options.controller.as_array(),
-        reference,
-        drive,
-        request_t,
-        request_nm,
-        scales,
-        t_end,
-        n_sub,
-        options.sigmas(),
-        cv_noise,
-        speed_noise,
-        torque_noise,
-        out_speed,
-        out_torque,
-        counts,
-    )
+    jobs = Jobs(params, scales, n_sub, cv_noise, speed_noise, torque_noise, out_speed, out_torque)
+    run_plant_batch(loop, jobs, t_end, counts)
     return BatchResult(out_speed, out_torque, counts[:, 0], counts[:, 1], counts[:, 2])

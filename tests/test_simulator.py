@@ -12,7 +12,7 @@ from dtid.identification.frf.runs import find_runs
 from dtid.identification.frf.sensor_response import stroke_hold_gain
 from dtid.identification.samples.testdata import from_simulation
 from dtid.simulator.controller import IdleController
-from dtid.simulator.kernel import run_plant
+from dtid.simulator.kernel import Job, advance, initial_state, run_plant, run_plant_batch
 from dtid.simulator.linear import three_mass_frf
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import (
@@ -151,7 +151,6 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
     """One step of pi/30 is accurate: four substeps change |G_DRV| by less than 0.2 dB."""
     plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=30.0)
     options = SimulationOptions.clean()
-    tables = options.tables()
     requests = simulate(reference, plan, options)  # supplies the tool's test-torque requests
     frfs = []
     for n_sub in (1, 4):
@@ -159,26 +158,11 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
         out_speed = np.empty((n_speed_max, 5))
         out_torque = np.empty((n_stroke_max, 3))
         zeros_s, zeros_t = np.zeros(n_speed_max), np.zeros(n_stroke_max)
-        n_speed, n_torque, status = run_plant(
-            reference.as_array(),
-            tables.combustion_shape,
-            tables.compression,
-            tables.inertia,
-            options.controller.as_array(),
-            options.controller.reference(),
-            np.zeros(0),
-            requests.request_t,
-            requests.test_torque_nm,
-            1.0,
-            plan.end_s,
-            n_sub,
-            options.sigmas(),
-            zeros_t,
-            zeros_s,
-            zeros_t,
-            out_speed,
-            out_torque,
+        loop = options.loop(requests.request_t, requests.test_torque_nm)
+        job = Job(
+            reference.as_array(), 1.0, n_sub, zeros_t, zeros_s, zeros_t, out_speed, out_torque
         )
+        n_speed, n_torque, status = run_plant(loop, job, plan.end_s)
         assert status == 0
         result = SimulationResult.from_outputs(
             out_speed[:n_speed],
@@ -233,3 +217,9 @@ def test_a_tooth_timer_averages_times_and_the_model_need_not_know(
     baseline, right, wrong = fit(speeds, VehicleData()), fit(times, told), fit(times, VehicleData())
     # measured: 0.008 for eq. (9)'s vehicle; the tooth timer's 0.018 told, 0.031 not
     assert baseline < right < 0.025 < wrong, (baseline, right, wrong)
+
+
+def test_the_kernels_release_the_gil() -> None:
+    """The worker searches in a thread beside its ZeroMQ loop: the kernels must not hold it."""
+    for kernel in (run_plant, run_plant_batch, advance, initial_state):
+        assert kernel.targetoptions.get("nogil") is True, kernel.__name__
