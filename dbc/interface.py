@@ -14,7 +14,7 @@ import numpy as np
 from cantools.database import DecodeError, EncodeError
 from cantools.database.can import Database, Message, Signal
 
-from dtid.dbc.checksum import CHECKSUM_BYTE, PAYLOAD_LENGTH, apply_checksum
+from dtid.dbc.checksum import CHECKSUM_BYTE, PAYLOAD_LENGTH, apply_checksum, verify_checksum
 from dtid.dbc.database import load_database
 from dtid.dbc.resources import DEFAULT_DBC
 from dtid.dbc.roles import REQUIRED_ROLES
@@ -41,7 +41,9 @@ class RoleSeries:
         float64, one per timestamp.
     extra : Mapping[str, numpy.ndarray]
         Raw integer values (int64, one per timestamp) of the further signals the map names for
-        the role, keyed ``counter``, ``cylinder``, ``enable`` or ``checksum``.
+        the role, keyed ``counter``, ``cylinder``, ``enable`` or ``checksum``; for a role whose
+        frames carry the product's checksum also ``checksum_ok`` (1 where the payload's
+        checksum verifies, 0 where it does not: what the receiving ECU checks).
     n_bad : int
         Frames of the role's message that were skipped because their length differs from the DBC
         or they could not be decoded.
@@ -251,8 +253,10 @@ class VehicleInterface:
         decode = message.decode
         length = message.length
         names = [role.signal_names for role in roles]
+        checked = [role.product_checksum for role in roles]
         times: list[list[float]] = [[] for _ in roles]
         rows: list[list[tuple[float, ...]]] = [[] for _ in roles]
+        verified: list[list[bool]] = [[] for _ in roles]
         undecodable = 0
         absent = [0] * len(roles)
         for frame in frames:
@@ -272,8 +276,17 @@ class VehicleInterface:
                     absent[index] += 1
                     continue
                 times[index].append(frame.timestamp)
+                if checked[index]:
+                    verified[index].append(verify_checksum(data))
         return [
-            self._series(role, times[index], rows[index], undecodable + absent[index], len(frames))
+            self._series(
+                role,
+                times[index],
+                rows[index],
+                undecodable + absent[index],
+                len(frames),
+                verified[index] if checked[index] else None,
+            )
             for index, role in enumerate(roles)
         ]
 
@@ -284,6 +297,7 @@ class VehicleInterface:
         rows: list[tuple[float, ...]],
         n_bad: int,
         n_frames: int,
+        verified: list[bool] | None,
     ) -> RoleSeries:
         columns = list(zip(*rows, strict=True)) if rows else [[]] * len(role.signal_names)
         values = np.asarray(columns[0], dtype=np.float64) * role.spec.gain
@@ -291,6 +305,8 @@ class VehicleInterface:
             key: _raw(list(column), signal)
             for (key, signal), column in zip(role.extra_signals.items(), columns[1:], strict=True)
         }
+        if verified is not None:
+            extra["checksum_ok"] = np.asarray(verified, dtype=np.int64)
         if n_bad:
             logger.warning(
                 "role '%s': skipped %d of %d frames of message '%s' (0x%X) with a wrong length "

@@ -3,7 +3,7 @@
 The virtual vehicle runs the numba plant (:class:`dtid.simulator.plant_stepper.PlantStepper`) paced
 to wall time, optionally faster by a factor (``speedup``): bus time = wall time since its start
 times the speedup. Each tick it takes the test-torque requests that arrived (accepted or dropped as
-the ECU does, :class:`dtid.simulator.ecu_requests.RequestReceiver`), advances the plant to the
+the ECU does, :class:`dtid.dbc.ecu_requests.RequestReceiver`), advances the plant to the
 current bus time with the test torque it holds, and sends the speed, torque-request and mean-torque
 frames of that segment through the DBC (:class:`dtid.simulator.vehicle_frames.EcuFrames`).
 
@@ -24,9 +24,9 @@ from threading import Event
 import can
 import numpy as np
 
+from dtid.dbc.ecu_requests import RequestReceiver
 from dtid.dbc.interface import VehicleInterface
 from dtid.errors import ConfigError
-from dtid.simulator.ecu_requests import RequestReceiver
 from dtid.simulator.plant_stepper import PlantStepper
 from dtid.simulator.vehicle_frames import EcuFrames
 

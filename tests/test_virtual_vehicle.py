@@ -13,9 +13,9 @@ import pytest
 from dtid.acquisition.plan import TestPlan
 from dtid.acquisition.plan import tool_requests as plan_requests
 from dtid.dbc.checksum import verify_checksum
+from dtid.dbc.ecu_requests import RequestReceiver, applied_test_torque
 from dtid.dbc.loader import load_interface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
-from dtid.simulator.ecu_requests import RequestReceiver
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.plant_stepper import PlantStepper
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -81,6 +81,42 @@ def test_receiver_times_out_to_zero_and_resynchronises():
     assert receiver.test_torque(1.0 + DEFAULT_REQUEST_TIMEOUT_S + 1e-3) == 0.0
     receiver.receive(request(5.0, 2), now_s=2.0)  # any counter after a timeout
     assert receiver.test_torque(2.0) == pytest.approx(5.0)
+
+
+def test_a_recordings_requests_are_applied_as_the_ecu_applied_them():
+    """The frames of a faulty request stream (a bad checksum, a repeated counter, a stall past
+    the timeout, TestEnable 0) replayed into the ECU's receiver one by one, and the same frames
+    decoded from a recording: the test torque the recording gives is the receiver's at every
+    instant."""
+    rng = np.random.default_rng(3)
+    frames, now, counter = [], 0.0, 0
+    for i in range(400):
+        frame = request(float(rng.normal(0, 5)), counter, t=now, enable=int(i % 97 != 50))
+        if i % 53 == 7:
+            data = bytearray(frame.data)
+            data[1] ^= 0x10
+            frame.data = data
+        elif i % 61 != 11:  # a repeated counter every 61 frames
+            counter += 1
+        frames.append(frame)
+        now += 0.01 if i % 150 != 120 else 0.2  # two stalls beyond the 50 ms timeout
+    receiver = RequestReceiver(INTERFACE)
+    decoded = INTERFACE.decode(frames)["test_torque"]
+    t, value, rules = applied_test_torque(
+        decoded.timestamps, decoded.values, decoded.extra, DEFAULT_REQUEST_TIMEOUT_S
+    )
+    probes = np.sort(np.concatenate([t + 1e-6, t + 4e-3, rng.uniform(0, now, 300)]))
+    expected, k = [], 0
+    for probe in probes:
+        while k < len(frames) and frames[k].timestamp <= probe:
+            receiver.receive(frames[k], frames[k].timestamp)
+            k += 1
+        expected.append(receiver.test_torque(probe))
+    at = np.searchsorted(t, probes, side="right") - 1
+    held = np.where(at >= 0, value[np.maximum(at, 0)], 0.0)
+    np.testing.assert_allclose(held, expected, atol=1e-9)
+    assert rules.dropped == receiver.dropped and rules.dropped["checksum"] == 8
+    assert rules.dropped["counter"] > 0
 
 
 def run_vehicle_with_requests(speedup: float, duration: float, stop_requests_at: float, **faults):

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from dtid.acquisition.logfile import read_log
+from dtid.dbc.ecu_requests import applied_test_torque
 from dtid.dbc.interface import RoleSeries, VehicleInterface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import AnalysisError
@@ -109,21 +110,29 @@ class Recording:
     def _applied_test_torque(self) -> Series:
         """The test torque the ECU applied, from the requests the recording holds, N*m.
 
-        The ECU applies a request until the next one, but zero once ``request_timeout_s`` has
-        passed without one (the tool stalled, frames were lost) and while the request's enable
-        signal, where mapped, is 0. Holding the last request over such a pause, as the plain
-        series would, makes the FRF's excitation and the model's replay differ from what drove
-        the engine.
+        The ECU's own rules (:func:`dtid.dbc.ecu_requests.applied_test_torque`): a request holds
+        until the next, zero once ``request_timeout_s`` has passed without one (the tool
+        stalled, frames were lost) and while its enable signal, where mapped, is 0; a request
+        whose checksum or alive counter is wrong is dropped, as the ECU dropped it. Holding the
+        last request over such a pause, as the plain series would, makes the FRF's excitation
+        and the model's replay differ from what drove the engine.
         """
         decoded = self.roles["test_torque"]
-        t, value = decoded.timestamps, decoded.values.astype(float)
-        enable = decoded.extra.get("enable")
-        if enable is not None:
-            value = np.where(enable == 0, 0.0, value)
-        timeout = self.request_timeout_s
-        pauses = np.flatnonzero(np.diff(t) > timeout)
-        ends = np.append(pauses, len(t) - 1) if len(t) else pauses
-        return Series(np.insert(t, ends + 1, t[ends] + timeout), np.insert(value, ends + 1, 0.0))
+        t, value, rules = applied_test_torque(
+            decoded.timestamps,
+            decoded.values.astype(float),
+            decoded.extra,
+            self.request_timeout_s,
+        )
+        if rules.dropped:
+            logger.warning(
+                "%s: %s test-torque request(s) the ECU drops (%s); the test torque is taken as "
+                "the ECU applied it",
+                self.path,
+                sum(rules.dropped.values()),
+                ", ".join(f"{n} {reason}" for reason, n in sorted(rules.dropped.items())),
+            )
+        return Series(t, value)
 
     def _crank_series(self, role: str) -> Series:
         """A crank-synchronous role's samples: a frame repeating its predecessor's counter (a
