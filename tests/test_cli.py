@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from json_schemas import validate
 
 from dtid.cli import main
 
@@ -204,6 +205,7 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
     ]
     assert main(argv) == 0
     document = json.loads(out.read_text())
+    validate(document, "identification")  # with intervals and verdicts
     assert 150 <= document["parameters"]["c12"] <= 450
     assert all(
         value is None or 150 <= value <= 450 for value in document["intervals"]["c12"].values()

@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import pytest
+from json_schemas import validate
 
 from dtid.cli import main
 from dtid.identification.search.parameterization import theta_from_parameters
@@ -27,6 +28,7 @@ def test_demo_identifies_the_reference_vehicle_and_writes_its_files(
     runs = json.loads((out / "frf.json").read_text())["runs"]
     assert [round(r["amplitude_nm"]) for r in runs] == [5, 10, 2]
     document = json.loads((session / "identification.json").read_text())
+    validate(document, "identification")
     assert set(document) >= {"parameters", "intervals", "nrmse", "identifiable"}
     assert set(document["nrmse"]["validation"]) == {f"{session / session.name}.blf @ 2 N*m"}
     truth = reference_parameters()

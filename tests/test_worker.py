@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zmq
+from json_schemas import validate
 
 from dtid.acquisition.config import AcquisitionConfig, PipelineConfig, TestPlan
 from dtid.acquisition.logfile import read_log, write_log
@@ -386,6 +387,7 @@ def test_live_result_equals_dtid_identify_on_the_log(live_run: dict, offline: di
     assert len(live["nrmse"]["fit"]) == 2
     written = json.loads((live_run["out"] / "identification.json").read_text())
     assert written == live
+    validate(written, "identification")
     assert (live_run["out"] / "fig6.png").stat().st_size > 10_000
     # the PUB carried the same result (the SUB joined before the worker published anything)
     assert [doc for topic, doc in live_run["received"] if topic == "result"] == [live]

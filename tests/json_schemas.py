@@ -1,0 +1,18 @@
+"""Validate a ``--json`` document against its schema in docs/schemas (JSON Schema 2020-12)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jsonschema
+
+SCHEMAS = Path(__file__).resolve().parents[1] / "docs" / "schemas"
+
+
+def validate(document: object, name: str) -> None:
+    """Raise ``jsonschema.ValidationError`` unless ``document`` fits its schema,
+    ``docs/schemas/NAME.schema.json``."""
+    schema = json.loads((SCHEMAS / f"{name}.schema.json").read_text())
+    jsonschema.Draft202012Validator.check_schema(schema)
+    jsonschema.Draft202012Validator(schema).validate(document)

@@ -1,0 +1,86 @@
+"""Every ``--json`` output fits its published schema (docs/schemas), and the schemas are strict
+enough to refuse a document that breaks the contract."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jsonschema
+import pytest
+from json_schemas import SCHEMAS, validate
+
+from dtid.cli import main
+
+HELD = ["J_sum=0.28", "x1=0.625", "x12=0.857", "c23=80", "d23=0.3", "Tc12=0.3", "eps23=0.012"]
+"""The reference's values, held so that the search (c12, d12, eps12 free) takes seconds: the
+schema is the subject here, not the search."""
+
+
+@pytest.fixture(scope="module")
+def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    """The documents of `dtid inspect`, `frf` and `identify` on a short simulated test."""
+    folder = tmp_path_factory.mktemp("schemas")
+    recording = folder / "test.blf"
+    assert main(["simulate", str(recording), "--duration", "20"]) == 0
+    commands = {
+        "inspect": ["inspect", str(recording)],
+        "frf": ["frf", str(recording)],
+        "identification": [
+            "identify",
+            str(recording),
+            "--generations",
+            "2",
+            "--profile-points",
+            "3",
+            "--fix",
+            *HELD,
+        ],
+    }
+    documents = {}
+    for name, command in commands.items():
+        path = folder / f"{name}.json"
+        assert main([*command, "--json", str(path)]) == 0
+        documents[name] = json.loads(path.read_text())
+    return documents
+
+
+@pytest.mark.parametrize("name", ["inspect", "frf", "identification"])
+def test_each_output_fits_its_schema(outputs: dict[str, object], name: str) -> None:
+    validate(outputs[name], name)
+
+
+def test_every_schema_file_is_tested() -> None:
+    assert {p.name.split(".")[0] for p in SCHEMAS.glob("*.schema.json")} == {
+        "inspect",
+        "frf",
+        "identification",
+    }
+
+
+@pytest.mark.parametrize(
+    ("name", "path", "value"),
+    [
+        ("identification", ("parameters",), {"J_sum": 0.3}),
+        ("identification", ("identifiable", "c12"), "maybe"),
+        ("identification", ("idle_loop",), {"x": {"mode": "own_controller"}}),
+        ("frf", ("runs", 0, "amplitude_nm"), -5.0),
+        ("inspect", ("roles",), {"rpm": {}}),
+    ],
+)
+def test_a_broken_contract_is_refused(
+    outputs: dict[str, object], name: str, path: tuple, value: object
+) -> None:
+    document = json.loads(json.dumps(outputs[name]))
+    target = document
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = value
+    with pytest.raises(jsonschema.ValidationError):
+        validate(document, name)
+
+
+def test_the_schema_page_names_every_schema() -> None:
+    page = (Path(__file__).resolve().parents[1] / "docs" / "schemas.md").read_text()
+    for schema in SCHEMAS.glob("*.schema.json"):
+        assert f"schemas/{schema.name}" in page
