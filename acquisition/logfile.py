@@ -23,12 +23,21 @@ import os
 import re
 import struct
 import zlib
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from operator import attrgetter
 from pathlib import Path
 
 import can
-from can.io.blf import FILE_HEADER_SIZE, BLFParseError
+from can.io.blf import (
+    FILE_HEADER_SIZE,
+    LOG_CONTAINER,
+    LOG_CONTAINER_STRUCT,
+    NO_COMPRESSION,
+    OBJ_HEADER_BASE_STRUCT,
+    ZLIB_DEFLATE,
+    BLFParseError,
+)
 
 from dtid.errors import RecordingError
 
@@ -129,14 +138,92 @@ def write_log(
     return len(frames)
 
 
-def read_log(path: str | os.PathLike[str]) -> list[can.Message]:
-    """Read the CAN frames of a recording file.
+@dataclass(frozen=True)
+class Damage:
+    """A damaged part of a recording, skipped.
 
-    A file cut short (a recording interrupted while written) is read up to the cut, with a
-    warning: a BLF file shorter than its header says, or never closed; a text file whose last
-    line has no line end (that line is dropped); an ASC file without its closing
-    ``End TriggerBlock``. A text file cut exactly at a line end of a frame cannot be told from a
-    complete one.
+    Attributes
+    ----------
+    where
+        Where in the file: ``bytes A-B`` (a BLF container) or ``line N``.
+    frames_lost
+        Frames it held (estimated for a BLF container from its uncompressed size).
+    after_s, before_s
+        Timestamps of the intact frames just before and just after it, s (None at the file's
+        start or end).
+    """
+
+    where: str
+    frames_lost: int
+    after_s: float | None = None
+    before_s: float | None = None
+
+    def describe(self) -> str:
+        """One line for a warning or `dtid inspect`."""
+        span = (
+            f"between {self.after_s:.3f} s and {self.before_s:.3f} s"
+            if self.after_s is not None and self.before_s is not None
+            else "at the start"
+            if self.before_s is not None
+            else "at the end"
+        )
+        return f"{self.where}: about {self.frames_lost} frame(s) lost {span}"
+
+
+@dataclass(frozen=True)
+class Integrity:
+    """What of a recording was read: intact, cut short, damaged parts skipped.
+
+    Attributes
+    ----------
+    cut
+        Why the file ends early (cut short, never closed, an incomplete last line), or None.
+    damaged
+        The damaged parts skipped, in file order.
+    """
+
+    cut: str | None = None
+    damaged: tuple[Damage, ...] = ()
+
+    @property
+    def intact(self) -> bool:
+        """True when nothing was cut or skipped."""
+        return self.cut is None and not self.damaged
+
+    def as_dict(self) -> dict[str, object]:
+        """For `dtid inspect --json`."""
+        return {
+            "intact": self.intact,
+            "cut": self.cut,
+            "damaged": [
+                {
+                    "where": d.where,
+                    "frames_lost": d.frames_lost,
+                    "after_s": d.after_s,
+                    "before_s": d.before_s,
+                }
+                for d in self.damaged
+            ],
+        }
+
+
+def read_log(path: str | os.PathLike[str]) -> list[can.Message]:
+    """Read the CAN frames of a recording file, with a warning for whatever was cut or damaged
+    (:func:`read_log_checked`)."""
+    return read_log_checked(path)[0]
+
+
+def read_log_checked(path: str | os.PathLike[str]) -> tuple[list[can.Message], Integrity]:
+    """Read the CAN frames of a recording file, and what of it could not be read.
+
+    Nothing readable is lost. A file cut short (a recording interrupted while written) is read
+    up to the cut: a BLF file shorter than its header says, or never closed; a text file whose
+    last line has no line end (that line is dropped); an ASC file without its closing ``End
+    TriggerBlock``. A text file cut exactly at a line end of a frame cannot be told from a
+    complete one. A damaged BLF container (one byte wrong breaks its compression) is skipped and
+    the containers after it are read; a damaged line of a text log is skipped and the lines
+    after it are read. Each is logged as a warning naming where it was, the frames lost and the
+    time span.
 
     Parameters
     ----------
@@ -145,15 +232,17 @@ def read_log(path: str | os.PathLike[str]) -> list[can.Message]:
 
     Returns
     -------
-    list[can.Message]
+    frames : list[can.Message]
         The frames in file order, timestamps in s (see the module notes on what each format
         preserves).
+    integrity : Integrity
+        What was cut or skipped.
 
     Raises
     ------
     RecordingError
-        If the file does not exist, has an unsupported suffix, cannot be read, has a broken
-        header, holds data that cannot be parsed before any cut, or holds no frame.
+        If the file does not exist, has an unsupported suffix, cannot be read, or holds no
+        readable frame.
     """
     path = Path(path)
     suffix = _suffix(path)
@@ -162,80 +251,274 @@ def read_log(path: str | os.PathLike[str]) -> list[can.Message]:
     if path.is_dir():
         raise RecordingError(f"recording {path} is a directory, not a {suffix} file")
     try:
-        frames = _read_blf(path) if suffix == ".blf" else _read_text(path, suffix)
+        frames, integrity = _read_blf(path) if suffix == ".blf" else _read_text(path, suffix)
     except RecordingError:
         raise
     except OSError as error:
         raise RecordingError(f"cannot read recording {path}: {error.strerror or error}") from error
     if not frames:
-        raise RecordingError(f"recording {path} holds no CAN frames")
+        problem = f" ({integrity.cut})" if integrity.cut else ""
+        if integrity.damaged:
+            problem += f" ({len(integrity.damaged)} damaged part(s), {integrity.damaged[0].where})"
+        readable = " readable" if problem else ""
+        raise RecordingError(f"recording {path} holds no{readable} CAN frames{problem}")
+    if integrity.damaged:
+        lost = sum(d.frames_lost for d in integrity.damaged)
+        logger.warning(
+            "recording %s is damaged: %d part(s) skipped, about %d frame(s) lost, the other %d "
+            "frames read: %s",
+            path,
+            len(integrity.damaged),
+            lost,
+            len(frames),
+            "; ".join(d.describe() for d in integrity.damaged[:5])
+            + ("; ..." if len(integrity.damaged) > 5 else ""),
+        )
+    if integrity.cut:
+        logger.warning(
+            "recording %s %s; read the %d frames before the cut", path, integrity.cut, len(frames)
+        )
     logger.info("read %d frames from %s", len(frames), path)
-    return frames
+    return frames, integrity
 
 
-def _read_blf(path: Path) -> list[can.Message]:
+def _timed(damage: list[tuple[str, int, int]], frames: list[can.Message]) -> tuple[Damage, ...]:
+    """Damage records (where, frames lost, index of the next intact frame) with their times."""
+    return tuple(
+        Damage(
+            where,
+            lost,
+            frames[index - 1].timestamp if index > 0 else None,
+            frames[index].timestamp if index < len(frames) else None,
+        )
+        for where, lost, index in damage
+    )
+
+
+class _ResilientBLFReader(can.BLFReader):
+    """python-can's BLF reader, walking the file container by container so that a damaged one
+    is skipped instead of ending the read; python-can parses each intact container."""
+
+    def __init__(self, file: io.BufferedIOBase) -> None:
+        super().__init__(file)
+        self.damage: list[tuple[str, int, int]] = []
+        self.overrun = False
+        self._frames = 0
+        self._bytes = 0
+
+    def __iter__(self) -> Iterator[can.Message]:
+        offset = self.file.tell()
+        data = self.file.read()
+        header_size = OBJ_HEADER_BASE_STRUCT.size
+        pos, resync = 0, False
+        while pos + header_size <= len(data):
+            signature, _, _, size, kind = OBJ_HEADER_BASE_STRUCT.unpack_from(data, pos)
+            end = pos + size
+            if signature != b"LOBJ" or size < header_size or end > len(data):
+                following = data.find(b"LOBJ", pos + 1)
+                if signature == b"LOBJ" and end > len(data) and following < 0:
+                    self.overrun = True  # the last object runs past the end: cut short
+                    break
+                stop = following if following >= 0 else len(data)
+                self._damaged(offset + pos, offset + stop, 0)
+                resync = True
+                if following < 0:
+                    break
+                pos = following
+                continue
+            following = end + size % 4
+            if kind == LOG_CONTAINER:
+                method, uncompressed = LOG_CONTAINER_STRUCT.unpack_from(data, pos + header_size)
+                payload = data[pos + header_size + LOG_CONTAINER_STRUCT.size : end]
+                try:
+                    if method == NO_COMPRESSION:
+                        inner = payload
+                    elif method == ZLIB_DEFLATE:
+                        inner = zlib.decompressobj().decompress(payload)
+                    else:
+                        raise BLFParseError(f"unknown compression method {method}")
+                    if resync:
+                        start = inner.find(b"LOBJ")
+                        inner = inner[start:] if start >= 0 else b""
+                        self._tail = b""
+                    frames = list(self._parse_container(inner))
+                except (*_BLF_ERRORS, IndexError) as error:
+                    logger.debug("BLF container at byte %d: %s", offset + pos, _reason(error))
+                    self._damaged(offset + pos, offset + following, uncompressed)
+                    resync = True
+                    pos = following
+                    continue
+                resync = False
+                self._frames += len(frames)
+                self._bytes += len(inner)
+                yield from frames
+            pos = following
+
+    def _damaged(self, start: int, stop: int, uncompressed: int) -> None:
+        per_frame = self._bytes / self._frames if self._frames else 48.0
+        self._tail = b""
+        self.damage.append((f"bytes {start}-{stop}", round(uncompressed / per_frame), self._frames))
+
+
+def _read_blf(path: Path) -> tuple[list[can.Message], Integrity]:
     size = path.stat().st_size
-    frames: list[can.Message] = []
-    failure: BaseException | None = None
-    with path.open("rb") as file:
-        try:
-            reader = can.BLFReader(file)
-        except _BLF_ERRORS as error:
+    raw = path.read_bytes()
+    try:
+        reader = _ResilientBLFReader(io.BytesIO(raw))
+    except _BLF_ERRORS as error:
+        if len(raw) <= FILE_HEADER_SIZE:
             raise RecordingError(
                 f"recording {path} is not a readable BLF file (broken header: {_reason(error)})"
             ) from error
+        # a damaged header: read the objects after it, times relative to the first frame
+        logger.warning(
+            "recording %s: its BLF header is damaged (%s); reading the frames after it",
+            path,
+            _reason(error),
+        )
+        repaired = bytearray(raw)
+        repaired[0:4] = b"LOGG"
+        repaired[4:8] = FILE_HEADER_SIZE.to_bytes(4, "little")
+        repaired[40:72] = bytes(32)  # start and stop time unknown
         try:
-            for frame in reader:
-                frames.append(frame)
-        except _BLF_ERRORS as error:
-            failure = error
+            reader = _ResilientBLFReader(io.BytesIO(bytes(repaired)))
+        except _BLF_ERRORS:
+            raise RecordingError(
+                f"recording {path} is not a readable BLF file (broken header: {_reason(error)})"
+            ) from error
+    frames = list(reader)
     declared = reader.file_size
-    if declared > size:
+    cut = None
+    if declared > size or reader.overrun:
         cut = f"is cut short ({size} of {declared} bytes)"
     elif declared <= FILE_HEADER_SIZE < size:
         cut = "was not closed by its writer (header never completed)"
-    elif failure is not None:
-        raise RecordingError(
-            f"recording {path} is damaged after {len(frames)} frames: {_reason(failure)}"
-        ) from failure
-    else:
-        return frames
-    if not frames:
-        raise RecordingError(f"recording {path} {cut} and holds no complete CAN frame")
-    logger.warning("recording %s %s; read the %d frames before the cut", path, cut, len(frames))
-    return frames
+    return frames, Integrity(cut, _timed(reader.damage, frames))
 
 
-def _read_text(path: Path, suffix: str) -> list[can.Message]:
+def _read_text(path: Path, suffix: str) -> tuple[list[can.Message], Integrity]:
     # latin-1 maps every byte to a character: Vector tools write ASC headers in the Windows
     # code page, and lines that are not frames fail to parse (.log) or are skipped (.asc).
     text = path.read_bytes().decode("latin-1")
     end = text.rfind("\n") + 1
     tail = text[end:]
+    cut = None
     if tail.strip() and tail.strip().lower() != _ASC_END:
-        logger.warning(
-            "recording %s ends in an incomplete line (cut while written?); ignored it: %r",
-            path,
-            tail[:60],
-        )
+        cut = f"ends in an incomplete line (cut while written?), ignored: {tail[:60]!r}"
         text = text[:end]
-    binary = _CONTROL_CHARACTER.search(text)
-    if binary is not None:
-        line = text.count("\n", 0, binary.start()) + 1
+    elif suffix == ".asc" and not text.rstrip().lower().endswith(_ASC_END):
+        cut = "lacks its closing 'End TriggerBlock' line (cut short?)"
+    lines = text.splitlines(keepends=True)
+    damaged = [i for i, line in enumerate(lines) if _CONTROL_CHARACTER.search(line)]
+    if len(damaged) > len(lines) // 2:
         raise RecordingError(
-            f"recording {path} holds binary data in line {line}; it is not a {suffix} text log "
-            "or it is damaged"
+            f"recording {path} holds binary data in {len(damaged)} of {len(lines)} lines "
+            f"(the first: line {damaged[0] + 1}); it is not a {suffix} text log"
         )
-    if suffix == ".asc" and not text.rstrip().lower().endswith(_ASC_END):
-        logger.warning(
-            "recording %s lacks its closing 'End TriggerBlock' line; it may be cut short", path
-        )
-    frames: list[can.Message] = []
+    for i in damaged:
+        lines[i] = "\n"
+    frames, failed = _parse_lines(lines, suffix)
+    inconsistent = {i for i, frame in frames if not _consistent(frame)}
+    inconsistent |= _stray_times(frames)
+    frames = [(i, frame) for i, frame in frames if i not in inconsistent]
+    bad = sorted(set(damaged) | set(failed) | inconsistent | set(_unknown_lines(lines, suffix)))
+    records = []
+    for i in bad:
+        index = next((k for k, (line_no, _) in enumerate(frames) if line_no > i), len(frames))
+        records.append((f"line {i + 1}", 1, index))
+    messages = [frame for _, frame in frames]
+    return messages, Integrity(cut, _timed(records, messages))
+
+
+def _frame_lines(lines: list[str], suffix: str) -> list[int]:
+    """Indices of the lines that should each hold one frame."""
+    if suffix == ".log":
+        return [i for i, line in enumerate(lines) if line.strip()]
+    found = []
+    for i, line in enumerate(lines):
+        fields = line.split()
+        if len(fields) > 2 and _is_number(fields[0]) and fields[1].lower() != "start":
+            found.append(i)
+    return found
+
+
+_ASC_HEADER = re.compile(
+    r"\s*($|date |base |internal events|no internal events|//|begin triggerblock|end triggerblock)",
+    re.IGNORECASE,
+)
+"""ASC lines that are not frames and not damage: the header, comments, the trigger block."""
+
+
+def _unknown_lines(lines: list[str], suffix: str) -> list[int]:
+    """Lines of an ASC log that are neither header nor comment nor timed (a frame or an event):
+    python-can skips them silently; they are counted as damage."""
+    if suffix != ".asc":
+        return []
+    return [
+        i
+        for i, line in enumerate(lines)
+        if not _ASC_HEADER.match(line) and not _is_number(line.split(maxsplit=1)[0])
+    ]
+
+
+STRAY_S = 1.0
+"""A text log's frame whose time lies this far (s) from both its neighbours in the file, while
+they lie close to each other, is a damaged time stamp (a digit changed), not a late frame."""
+
+
+def _stray_times(frames: list[tuple[int, can.Message]]) -> set[int]:
+    """The lines whose time stamp stands alone, away from both neighbours (see STRAY_S)."""
+    stray = set()
+    for k in range(1, len(frames) - 1):
+        before, now, after = (frames[k + d][1].timestamp for d in (-1, 0, 1))
+        if abs(after - before) < STRAY_S and min(abs(now - before), abs(now - after)) > STRAY_S:
+            stray.add(frames[k][0])
+    return stray
+
+
+def _consistent(frame: can.Message) -> bool:
+    """A classical data frame carries as many bytes as its DLC says (a cut line does not)."""
+    if frame.is_fd or frame.is_remote_frame or frame.is_error_frame:
+        return True
+    return len(frame.data) == min(frame.dlc, 8)
+
+
+def _is_number(text: str) -> bool:
     try:
-        for frame in _TEXT_READERS[suffix](io.StringIO(text)):
-            frames.append(frame)
-    except (ValueError, IndexError) as error:
-        raise RecordingError(
-            f"recording {path} cannot be parsed after {len(frames)} frames: {_reason(error)}"
-        ) from error
-    return frames
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _parse_lines(lines: list[str], suffix: str) -> tuple[list[tuple[int, can.Message]], list[int]]:
+    """The frames of a text log with the line each came from, and the frame lines python-can
+    could not parse. python-can parses the whole text at once; where that fails or yields fewer
+    frames than there are frame lines, the frame lines are split in halves until each failing
+    line stands alone (each block behind the ASC header, whose settings it needs)."""
+    candidates = _frame_lines(lines, suffix)
+    reader = _TEXT_READERS[suffix]
+    header = "" if suffix == ".log" else "".join(lines[: candidates[0]] if candidates else lines)
+
+    def parse(block: list[int]) -> list[can.Message] | None:
+        text = header + "".join(lines[i] for i in block)
+        try:
+            frames = list(reader(io.StringIO(text)))
+        except (ValueError, IndexError):
+            return None
+        return frames if len(frames) == len(block) else None
+
+    frames: list[tuple[int, can.Message]] = []
+    failed: list[int] = []
+    pending = [candidates]
+    while pending:
+        block = pending.pop()
+        parsed = parse(block) if block else []
+        if parsed is not None:
+            frames.extend(zip(block, parsed, strict=True))
+        elif len(block) == 1:
+            failed.append(block[0])
+        else:
+            pending += [block[len(block) // 2 :], block[: len(block) // 2]]
+    frames.sort(key=lambda pair: pair[0])
+    return frames, sorted(failed)

@@ -51,7 +51,7 @@ from dtid.identification.search.parameterization import (
 from dtid.identification.search.start_values import start_thetas
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
 from dtid.jsonfile import write_json
-from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.parameters import UNITS, DrivetrainParameters
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -306,7 +306,7 @@ class IdentificationReport:
         }
         return {
             "parameters": parameters,
-            "units": {**THETA_UNITS, "J1": "kg*m^2", "J2": "kg*m^2", "J3": "kg*m^2", "K": "1"},
+            "units": {**THETA_UNITS, **{name: UNITS[name] for name in ("J1", "J2", "J3", "K")}},
             "intervals": intervals,
             "nrmse": {"fit": result.fit_nrmse, "validation": result.validation_nrmse},
             "identifiable": {name: prof.verdict for name, prof in self.profiles.items()}

@@ -6,7 +6,7 @@ import can
 import numpy as np
 import pytest
 
-from dtid.acquisition.logfile import SUPPORTED_SUFFIXES, read_log, write_log
+from dtid.acquisition.logfile import SUPPORTED_SUFFIXES, read_log, read_log_checked, write_log
 from dtid.errors import RecordingError
 
 FORMATS = [".blf", ".asc", ".log"]
@@ -149,7 +149,7 @@ def test_read_errors(tmp_path):
 def test_file_without_frames(tmp_path, name, content):
     path = tmp_path / name
     path.write_bytes(content)
-    with pytest.raises(RecordingError, match="holds no CAN frames"):
+    with pytest.raises(RecordingError, match=r"holds no (readable )?CAN frames"):
         read_log(path)
 
 
@@ -166,7 +166,9 @@ def test_blf_cut_in_the_middle_reads_frames_before_the_cut(tmp_path, written, fr
     assert len(read) == len(frames)  # only padding was cut
 
 
-@pytest.mark.parametrize(("cut", "match"), [(40, "broken header"), (200, "no complete CAN frame")])
+@pytest.mark.parametrize(
+    ("cut", "match"), [(40, "broken header"), (200, r"no readable CAN frames \(is cut short")]
+)
 def test_blf_cut_before_the_first_frame(tmp_path, written, cut, match):
     data = written[".blf"].read_bytes()
     with pytest.raises(RecordingError, match=match):
@@ -187,11 +189,33 @@ def test_blf_never_closed_is_read_with_warning(tmp_path, frames, caplog):
     assert "was not closed by its writer" in caplog.text
 
 
-def test_blf_damaged_in_the_middle_is_an_error(tmp_path, written):
+def is_subsequence(read, frames):
+    """True when ``read`` is ``frames`` with some left out, in order (compared by content)."""
+    key = [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in frames]
+    position = 0
+    for m in read:
+        wanted = (m.arbitration_id, m.is_extended_id, bytes(m.data))
+        while position < len(key) and key[position] != wanted:
+            position += 1
+        if position == len(key):
+            return False
+        position += 1
+    return True
+
+
+def test_blf_damaged_in_the_middle_loses_that_container_only(tmp_path, written, frames, caplog):
     data = bytearray(written[".blf"].read_bytes())
     data[len(data) // 2 : len(data) // 2 + 64] = bytes(range(64))
-    with pytest.raises(RecordingError, match=r"damaged\.blf is damaged after \d+ frames"):
-        read_log(damaged_copy(tmp_path, written[".blf"], bytes(data)))
+    with caplog.at_level(logging.WARNING):
+        read, integrity = read_log_checked(damaged_copy(tmp_path, written[".blf"], bytes(data)))
+    (damage,) = integrity.damaged
+    lost = len(frames) - len(read)
+    assert 0 < lost < 0.2 * len(frames)  # one container of several
+    assert abs(damage.frames_lost - lost) < 0.1 * lost + 5  # the estimate
+    assert is_subsequence(read, frames)
+    assert damage.after_s < damage.before_s
+    assert "is damaged: 1 part(s) skipped" in caplog.text and damage.where in caplog.text
+    assert integrity.cut is None
 
 
 @pytest.mark.parametrize("suffix", FORMATS)
@@ -226,20 +250,52 @@ def test_asc_without_end_of_triggerblock_warns(tmp_path, written, frames, caplog
 
 
 @pytest.mark.parametrize("suffix", [".asc", ".log"])
-def test_text_log_with_binary_bytes_is_an_error(tmp_path, written, suffix):
+def test_text_log_with_binary_bytes_loses_that_line_only(tmp_path, written, frames, suffix, caplog):
     data = written[suffix].read_bytes()
     middle = data.find(b"\n", len(data) // 2) + 1
+    line = data[:middle].count(b"\n") + 1
     damaged = data[:middle] + b"\x00\x17\x80garbage\n" + data[middle:]
-    with pytest.raises(RecordingError, match=r"holds binary data in line \d+"):
-        read_log(damaged_copy(tmp_path, written[suffix], damaged))
+    with caplog.at_level(logging.WARNING):
+        read, integrity = read_log_checked(damaged_copy(tmp_path, written[suffix], damaged))
+    assert same_frames(read, frames)
+    assert [d.where for d in integrity.damaged] == [f"line {line}"]
+    assert f"line {line}: about 1 frame(s) lost" in caplog.text
 
 
-def test_candump_with_malformed_line_is_an_error(tmp_path, written):
+def test_candump_with_malformed_line_loses_that_line_only(tmp_path, written, frames, caplog):
     data = written[".log"].read_bytes()
     middle = data.find(b"\n", len(data) // 2) + 1
+    line = data[:middle].count(b"\n") + 1
     damaged = data[:middle] + b"(12.5) can0 this is not a frame\n" + data[middle:]
-    with pytest.raises(RecordingError, match=r"cannot be parsed after \d+ frames"):
-        read_log(damaged_copy(tmp_path, written[".log"], damaged))
+    with caplog.at_level(logging.WARNING):
+        read, integrity = read_log_checked(damaged_copy(tmp_path, written[".log"], damaged))
+    assert same_frames(read, frames)
+    assert [d.where for d in integrity.damaged] == [f"line {line}"]
+
+
+def test_asc_garbage_lines_are_counted_not_dropped_silently(tmp_path, written, frames, caplog):
+    """20 lines spoiled: garbage text, a payload that is not hex, a line cut short; 20 frames
+    fewer, each line named."""
+    lines = written[".asc"].read_bytes().split(b"\n")
+    frame_lines = [i for i, line in enumerate(lines) if line.strip()[:1].isdigit()]
+    spoiled = frame_lines[101::901][:20]  # every DLC among them
+    for n, i in enumerate(spoiled):
+        if n % 3 == 0:
+            lines[i] = b"#~ garbage @@ not a line of this log"
+        elif n % 3 == 1:
+            lines[i] = lines[i].replace(b" d ", b" d zz ", 1)
+        else:
+            head, payload = lines[i].split(b" d ", 1)
+            fields = payload.split()
+            # a line cut short: its last data byte missing (a DLC 0 line: the DLC itself)
+            lines[i] = head + b" d " + b" ".join(fields[:-1] if len(fields) > 1 else [b"9"])
+    with caplog.at_level(logging.WARNING):
+        read, integrity = read_log_checked(
+            damaged_copy(tmp_path, written[".asc"], b"\n".join(lines))
+        )
+    assert len(read) == len(frames) - 20
+    assert [d.where for d in integrity.damaged] == [f"line {i + 1}" for i in spoiled]
+    assert is_subsequence(read, frames)
 
 
 def test_real_candump_log(tmp_path, realdata):

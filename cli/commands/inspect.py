@@ -44,7 +44,7 @@ def role_summary(times: np.ndarray, values: np.ndarray) -> dict[str, float | int
 
 
 def report(recording: Recording) -> dict[str, object]:
-    """The inspect report (JSON keys ``roles`` and ``runs``)."""
+    """The inspect report (docs/schemas/inspect.schema.json)."""
     roles = {
         role: {**role_summary(series.timestamps, series.values), "bad_frames": series.n_bad}
         for role, series in recording.roles.items()
@@ -61,6 +61,7 @@ def report(recording: Recording) -> dict[str, object]:
         "roles": roles,
         "missing_roles": list(recording.missing_roles),
         "runs": runs,
+        "integrity": recording.integrity.as_dict(),
     }
 
 
@@ -72,6 +73,15 @@ def run(args: argparse.Namespace) -> int:
     """Print (and optionally save) the report."""
     document = report(load_recording(args.recording, load_interface(args.dbc, args.signals)))
     print(f"{document['recording']}: {document['frames']} frames, {document['duration_s']:.1f} s")
+    integrity = document["integrity"]
+    if integrity["intact"]:
+        print("integrity: intact")
+    if integrity["cut"]:
+        print(f"integrity: the file {integrity['cut']}")
+    for damage in integrity["damaged"]:
+        print(
+            f"integrity: damaged at {damage['where']}, about {damage['frames_lost']} frame(s) lost"
+        )
     print(f"{'role':<16}{'count':>8}{'rate/Hz':>10}{'min':>12}{'max':>12}{'max gap/s':>11}")
     for role, s in document["roles"].items():
         print(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 from collections.abc import Mapping
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dtid.acquisition.logfile import read_log
+from dtid.acquisition.logfile import Integrity, read_log_checked
 from dtid.dbc.ecu_requests import applied_test_torque
 from dtid.dbc.interface import RoleSeries, VehicleInterface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
@@ -44,6 +45,9 @@ class Recording:
     request_timeout_s
         How long the ECU applies a test-torque request when no valid one follows, s (the
         signal map's ``timeout_s``).
+    integrity
+        What of the file could not be read (cut short, damaged parts skipped); a live
+        session's is intact.
     """
 
     path: Path
@@ -52,6 +56,7 @@ class Recording:
     roles: dict[str, RoleSeries]
     missing_roles: tuple[str, ...]
     request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
+    integrity: Integrity = dataclasses.field(default_factory=Integrity)
 
     def series(self, role: str) -> Series:
         """The role's samples as a :class:`dtid.identification.samples.testdata.Series`."""
@@ -239,8 +244,8 @@ def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) ->
         If the file cannot be read.
     """
     path = Path(path)
-    frames = read_log(path)
-    return recording_from_series(
+    frames, integrity = read_log_checked(path)
+    recording = recording_from_series(
         path,
         interface.decode(frames),
         frames[0].timestamp,
@@ -249,3 +254,4 @@ def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) ->
         interface.missing_roles(),
         request_timeout(interface),
     )
+    return dataclasses.replace(recording, integrity=integrity)

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.errors import ConfigError
-from dtid.simulator.parameters import INDEX, DrivetrainParameters
+from dtid.simulator.parameters import INDEX, UNITS, DrivetrainParameters
 
 THETA_NAMES: tuple[str, ...] = (
     "J_sum",
@@ -30,17 +30,13 @@ THETA_NAMES: tuple[str, ...] = (
     "eps23",
 )
 THETA_UNITS: dict[str, str] = {
-    "J_sum": "kg*m^2",
+    "J_sum": UNITS["J1"],
     "x1": "1",
     "x12": "1",
-    "c12": "N*m/rad",
-    "c23": "N*m/rad",
-    "d12": "N*m*s/rad",
-    "d23": "N*m*s/rad",
-    "Tc12": "N*m",
-    "eps12": "rad",
-    "eps23": "rad",
+    **{name: UNITS[name] for name in ("c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23")},
 }
+"""Units of the setup-4 parameters: the simulator's (:data:`dtid.simulator.parameters.UNITS`),
+the mass ratios dimensionless."""
 PRIOR_SPAN = 1.0
 """Default bounds: the prior value times (1 - span, 1 + span), i.e. +-100 % (section IV-B)."""
 PASSENGER_CAR_RANGES: dict[str, tuple[float, float]] = {
