@@ -24,7 +24,8 @@ from typing import Any
 import zmq
 
 from dtid.acquisition.config import PipelineConfig
-from dtid.acquisition.stream import KINDS, encode_event
+from dtid.acquisition.ipc import private_folder
+from dtid.acquisition.stream import KINDS, REPLAY_PAGE, encode_event
 from dtid.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -46,7 +47,7 @@ def bind(socket: zmq.Socket, endpoint: str, what: str) -> None:
     try:
         if endpoint.startswith("ipc://"):
             path = Path(endpoint[len("ipc://") :])
-            path.parent.mkdir(parents=True, exist_ok=True)
+            private_folder(path.parent)
             if _listening(path):
                 raise ConfigError(
                     f"[pipeline] {what} = {endpoint!r}: cannot bind: another process (a daemon "
@@ -129,8 +130,10 @@ class EventServer:
         return event
 
     def replay(self, from_seq: int) -> bytes:
-        """The JSON list of the kept events from ``from_seq`` on."""
-        return b"[" + b",".join(self._bodies[max(0, from_seq) :]) + b"]"
+        """The JSON list of the kept events from ``from_seq`` on, at most
+        :data:`dtid.acquisition.stream.REPLAY_PAGE` of them."""
+        start = max(0, from_seq)
+        return b"[" + b",".join(self._bodies[start : start + REPLAY_PAGE]) + b"]"
 
     def close(self) -> None:
         """Stop the replay and close both sockets (queued events still go out for 1 s)."""

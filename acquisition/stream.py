@@ -2,9 +2,10 @@
 
 The daemon numbers every event of a test session (``seq`` from 0, no gaps) and keeps all of them
 until it exits; it publishes each on its PUB socket as two frames ``[kind, JSON]`` and hands out
-the kept ones on its REP socket (request ``{"from_seq": N}``, reply: one JSON list of events). A
-worker that starts late or restarts subscribes first, then asks for the past, and merges by
-``seq``: it loses nothing.
+the kept ones on its REP socket (request ``{"from_seq": N}``, reply: one JSON list of at most
+:data:`REPLAY_PAGE` events from N on; a full page means there may be more: ask again from the
+next ``seq``). A worker that starts late or restarts subscribes first, then asks for the past,
+page by page, and merges by ``seq``: it loses nothing.
 
 Event kinds and their keys besides ``kind``, ``session`` and ``seq``:
 
@@ -42,6 +43,9 @@ import numpy as np
 from dtid.dbc.interface import RoleSeries
 
 KINDS = ("session", "samples", "phase", "health", "end")
+REPLAY_PAGE = 500
+"""Most events one replay answer carries (about 2 MB of samples): a long session is never sent
+as one message."""
 """Event kinds, also the PUB topics."""
 
 ABORT_REASONS = {

@@ -22,6 +22,7 @@ from dtid.acquisition.bus import SETUP_HINT, _size_receive_buffer, open_bus
 from dtid.acquisition.clock import BusClock
 from dtid.acquisition.config import BusConfig, PipelineConfig
 from dtid.acquisition.server import EventServer
+from dtid.acquisition.stream import REPLAY_PAGE
 from dtid.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -123,6 +124,25 @@ def test_events_are_numbered_kept_and_replayed(pipeline: PipelineConfig) -> None
         assert replay(pipeline.replay, b'{"from_seq": 7}') == []
         assert "error" in replay(pipeline.replay, b'{"from": 1}')
         assert "error" in replay(pipeline.replay, b"not json")
+    finally:
+        server.close()
+
+
+def test_the_replay_answers_in_pages(pipeline: PipelineConfig) -> None:
+    """A long session is never one message: pages of REPLAY_PAGE events, the last one short."""
+    server = EventServer(pipeline, "long")
+    try:
+        total = 2 * REPLAY_PAGE + 37
+        for i in range(total):
+            server.publish("phase", {"phase": "chirp", "t_s": float(i)})
+        pages, start = [], 0
+        while True:
+            page = replay(pipeline.replay, json.dumps({"from_seq": start}).encode())
+            pages.append(len(page))
+            if len(page) < REPLAY_PAGE:
+                break
+            start = page[-1]["seq"] + 1
+        assert pages == [REPLAY_PAGE, REPLAY_PAGE, 37]
     finally:
         server.close()
 

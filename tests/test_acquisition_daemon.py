@@ -41,7 +41,7 @@ from dtid.acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
 from dtid.acquisition.health import HealthCounts
 from dtid.acquisition.logfile import read_log
 from dtid.acquisition.sequence import ZERO_REQUESTS, ToolFrames
-from dtid.acquisition.stream import decode_event
+from dtid.acquisition.stream import REPLAY_PAGE, decode_event
 from dtid.dbc.checksum import verify_checksum
 from dtid.dbc.loader import load_interface
 from dtid.dbc.tool_state import TOOL_ABORT
@@ -158,9 +158,16 @@ class Subscriber(threading.Thread):
                 break
         request = self.context.socket(zmq.REQ)
         request.connect(self.pipeline.replay)
-        request.send(json.dumps({"from_seq": 0}).encode())
-        if request.poll(5000):
-            self.replayed = json.loads(request.recv())
+        replayed: list[dict] = []
+        while True:  # page by page, as the worker does
+            request.send(json.dumps({"from_seq": len(replayed)}).encode())
+            if not request.poll(5000):
+                break
+            page = json.loads(request.recv())
+            replayed += page
+            if len(page) < REPLAY_PAGE:
+                self.replayed = replayed
+                break
         request.close(0)
         self.sub.close(0)
         self.context.term()

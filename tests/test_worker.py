@@ -28,9 +28,11 @@ import pytest
 import zmq
 from json_schemas import validate
 
-from dtid.acquisition.config import AcquisitionConfig, PipelineConfig, TestPlan
+import dtid.identification.service.worker as worker_module
+from dtid.acquisition.config import AcquisitionConfig, PipelineConfig
 from dtid.acquisition.logfile import read_log, write_log
-from dtid.acquisition.stream import encode_event, samples_roles
+from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.stream import REPLAY_PAGE, encode_event, samples_roles
 from dtid.cli import main
 from dtid.dbc.loader import load_interface
 from dtid.identification.pipeline import HOLD_OUT_S
@@ -142,8 +144,9 @@ class FakeDaemon:
         bus_per_wall: float = 1e9,
         drop: frozenset[int] = frozenset(),
         duplicate: frozenset[int] = frozenset(),
+        page: int = REPLAY_PAGE,
     ) -> None:
-        self.pipeline, self.events = pipeline, events
+        self.pipeline, self.events, self.page = pipeline, events, page
         self.bus_per_wall, self.drop, self.duplicate = bus_per_wall, drop, duplicate
         self.kept: list[dict[str, Any]] = []
         self.requests: list[int] = []
@@ -163,7 +166,7 @@ class FakeDaemon:
             request = json.loads(self.rep.recv())
             self.requests.append(request["from_seq"])
             kept = [e for e in self.kept if e["seq"] >= request["from_seq"]]
-            self.rep.send(json.dumps(kept).encode())
+            self.rep.send(json.dumps(kept[: self.page]).encode())
 
     def _run(self) -> None:
         started, bus = None, self.events[0]["log_start_s"]
@@ -497,11 +500,13 @@ def test_validation_chirp_with_lost_frames_leaves_the_identification_unvalidated
 
 
 def test_replay_alone_gives_the_live_result(
-    session: SimulatedSession, ipc_dir: Path, offline: dict
+    session: SimulatedSession, ipc_dir: Path, offline: dict, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A worker started after the session ended gets every event from the replay."""
+    """A worker started after the session ended gets every event from the replay, page by page
+    (pages of 40 events here, so that the session takes several)."""
+    monkeypatch.setattr(worker_module, "REPLAY_PAGE", 40)
     pipeline = _pipeline(ipc_dir)
-    daemon = FakeDaemon(pipeline, session.events)
+    daemon = FakeDaemon(pipeline, session.events, page=40)
     daemon.go.set()
     assert daemon.done.wait(10)
     options = WorkerOptions(settings=BUDGET, profile_points=0)  # files beside the log
@@ -510,6 +515,9 @@ def test_replay_alone_gives_the_live_result(
     finally:
         daemon.close()
     assert status == 0 and daemon.requests[0] == 0
+    assert daemon.requests[: len(session.events) // 40 + 1] == list(
+        range(0, len(session.events), 40)
+    )
     (result,) = [d for t, d in messages if t == "result"]
     assert _without_wall_time(result) == _without_wall_time(offline["identify"])
     folder = session.log_path.parent

@@ -46,7 +46,8 @@ from urllib.parse import urlsplit
 import zmq
 
 from dtid.acquisition.config import PipelineConfig
-from dtid.acquisition.stream import KINDS
+from dtid.acquisition.ipc import private_folder
+from dtid.acquisition.stream import KINDS, REPLAY_PAGE
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
@@ -100,11 +101,7 @@ def endpoint(address: str, bind: bool = False) -> str:
     parts = urlsplit(address)
     if parts.scheme == "ipc":
         if bind:
-            path = Path(address[len("ipc://") :])
-            try:
-                path.parent.mkdir(parents=True, exist_ok=True)
-            except OSError as error:
-                raise ConfigError(f"cannot make the folder of {address}: {error}") from None
+            private_folder(Path(address[len("ipc://") :]).parent)
         return address
     if parts.scheme == "tcp":
         host, sep, port = parts.netloc.rpartition(":")
@@ -281,6 +278,9 @@ class Worker:
             return
         for event in events:
             self._receive(event)
+        seqs = [e["seq"] for e in events if isinstance(e, dict) and isinstance(e.get("seq"), int)]
+        if len(events) >= REPLAY_PAGE and seqs:
+            self._ask(max(seqs) + 1)  # a full page: the rest follows
 
     def _receive(self, event: Any) -> None:
         if (

@@ -1,0 +1,52 @@
+"""The folder of the local (ipc) ZeroMQ endpoints, made private and checked before use.
+
+Whoever can create the socket files of the pipeline can feed the worker or read the stream. A
+predictable folder (``/tmp/dtid-UID`` without ``XDG_RUNTIME_DIR``) that another local user made
+first would be theirs; so the folder is made with mode 0700 when missing, and an existing one is
+used only when it is a real directory (not a symbolic link), owned by this user and not writable
+by others. A shared folder the administrator made for both services (``/run/dtid``, 0750, owned
+by the service user: deploy/systemd/dtid.tmpfiles) passes.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+from dtid.errors import ConfigError
+
+
+def private_folder(path: Path) -> Path:
+    """Make ``path`` (mode 0700) or check that the existing one is safe; return it.
+
+    Raises
+    ------
+    ConfigError
+        If it cannot be made, is not a directory, is a symbolic link, belongs to another user
+        or is writable by others; the message says how to fix it.
+    """
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    except OSError as error:
+        raise ConfigError(f"cannot make the ipc folder {path}: {error.strerror or error}") from None
+    info = path.lstat()
+    problem = None
+    if stat.S_ISLNK(info.st_mode):
+        problem = "is a symbolic link"
+    elif not stat.S_ISDIR(info.st_mode):
+        problem = "is not a directory"
+    elif info.st_uid != os.geteuid():
+        problem = f"belongs to user id {info.st_uid}, not to this user ({os.geteuid()})"
+    elif info.st_mode & stat.S_IWOTH:
+        problem = "is writable by every user"
+    if problem:
+        raise ConfigError(
+            f"the ipc folder {path} {problem}: another user could take over the pipeline's "
+            "sockets; remove it or set [pipeline] endpoints in a folder of your own (or set "
+            "XDG_RUNTIME_DIR)"
+        )
+    return path
