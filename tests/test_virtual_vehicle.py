@@ -164,10 +164,13 @@ def test_vehicle_idles_sends_frames_and_drops_the_request_when_the_tool_stops():
     assert np.all(np.diff(speed.extra["counter"]) == 1)
     assert np.mean(speed.values) == pytest.approx(1000.0, abs=15.0)
     assert report.requests_accepted > 0 and report.stalled_at_s is None
-    # the ECU applied 6 N*m while requests came and zero within 100 ms of bus time after
+    # the ECU applied 6 N*m while requests came and zero within 100 ms of bus time after the
+    # last one it received (both in the plant's time: a stalled host delays what it receives,
+    # not this); the last one came when the tool stopped, give or take the vehicle loop's own
+    # measured lateness (a stall of a busy host is in it)
     assert report.zero_cause == "timeout"
     assert 0.0 < report.zero_after_s - report.last_request_s <= 0.1
-    assert report.zero_after_s < 1.5 + 0.2
+    assert report.zero_after_s < 1.5 + 0.2 + report.late_max_s
 
 
 def test_vehicle_fault_injection_drops_and_corrupts_its_frames():
