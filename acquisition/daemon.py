@@ -263,6 +263,8 @@ class Daemon:
                 self._abort(self._path.alarm)
             elif self._sender.failure is not None:
                 self._abort("error")
+            elif self._recorder.failure is not None:
+                self._abort("log_write")
             if self._status is not None:
                 return
             if self._t_start is None:
@@ -357,6 +359,11 @@ class Daemon:
         path.publish_health()
         path.publish("end", {"status": self._status, "reason": self._reason, "t_s": self._t_end})
         self._recorder.close()
+        if self._recorder.failure is not None:
+            self.report(
+                f"log: {self._recorder.failure}; {self._recorder.frames} frames kept, "
+                f"{self._recorder.lost} not written"
+            )
         self.report("health: " + json.dumps(asdict(path.health.counts)))
         if self._status == "completed":
             self.report("end: completed")

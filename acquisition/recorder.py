@@ -28,6 +28,7 @@ UTC time, and the log is created exclusively.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
@@ -166,6 +167,8 @@ class Recorder:
         self.path = path
         self.frames = 0
         self.first_timestamp: float | None = None
+        self.failure: str | None = None
+        self.lost = 0
         if suffix == ".blf":
             self._writer: FileIOMessageWriter = CrashSafeBLFWriter(file, start_s)
         elif suffix == ".asc":
@@ -181,12 +184,30 @@ class Recorder:
         self.flush()
 
     def write(self, frame: can.Message) -> None:
-        """Write one frame (its ``channel`` is cleared: the log holds one bus)."""
+        """Write one frame (its ``channel`` is cleared: the log holds one bus).
+
+        Never raises: once the file cannot be written (a full disk, a removed directory) the
+        recorder keeps what it wrote, sets :attr:`failure` and counts the frames it could not
+        write in :attr:`lost`; the daemon stops the test when it sees the failure.
+        """
+        if self.failure is not None:
+            self.lost += 1
+            return
         frame.channel = None
-        self._write(frame)
+        try:
+            self._write(frame)
+        except OSError as error:
+            self._fail(error)
+            self.lost += 1
+            return
         if self.first_timestamp is None:
             self.first_timestamp = frame.timestamp
         self.frames += 1
+
+    def _fail(self, error: OSError) -> None:
+        if self.failure is None:
+            self.failure = f"cannot write the log {self.path}: {error.strerror or error}"
+            logger.error("%s; the %d frames written before are kept", self.failure, self.frames)
 
     def flush_if_due(self) -> bool:
         """Flush when ``flush_period_s`` has passed since the last flush; True if it did."""
@@ -197,21 +218,32 @@ class Recorder:
 
     def flush(self) -> None:
         """Hand every written frame to the kernel, and have the disk sync started."""
-        writer = self._writer
-        if isinstance(writer, CrashSafeBLFWriter):
-            writer.checkpoint()
-        writer.file.flush()
-        self._sync.request()
         self._next_flush = time.monotonic() + self._flush_period_s
+        if self.failure is not None:
+            return
+        writer = self._writer
+        try:
+            if isinstance(writer, CrashSafeBLFWriter):
+                writer.checkpoint()
+            writer.file.flush()
+        except OSError as error:
+            self._fail(error)
+            return
+        self._sync.request()
 
     def close(self) -> None:
         """Complete the file (BLF header with the true size, ASC end line), close and sync it."""
         if self._writer.file.closed:
             return
         self._sync.close()
-        self._writer.stop()
-        with self.path.open("rb") as file:
-            os.fsync(file.fileno())
+        try:
+            self._writer.stop()
+            with self.path.open("rb") as file:
+                os.fsync(file.fileno())
+        except OSError as error:
+            self._fail(error)
+            with contextlib.suppress(OSError):
+                self._writer.file.close()
 
 
 class _BackgroundSync:

@@ -54,6 +54,8 @@ ABORT_REASONS = {
     "foreign_tx": "another node sends frames with the tool's own test-torque request ID",
     "signal": "the daemon was told to stop (SIGINT or SIGTERM)",
     "error": "the daemon failed (bus error or internal error); see its log",
+    "log_write": "the raw log cannot be written (a full disk, a removed output directory); "
+    "what was written before is kept",
 }
 """Why a test may be aborted: the ``reason`` of an aborted ``end`` event."""
 

@@ -9,7 +9,9 @@ in a subprocess that also runs a fake ECU (SIGTERM and SIGKILL cases).
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import select
 import shutil
 import signal
@@ -29,6 +31,7 @@ import pytest
 import zmq
 from can.interfaces.virtual import channels as virtual_channels
 
+import dtid.acquisition.daemon as daemon_module
 from dtid.acquisition.config import (
     AcquisitionConfig,
     BusConfig,
@@ -39,7 +42,8 @@ from dtid.acquisition.config import (
 )
 from dtid.acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
 from dtid.acquisition.health import HealthCounts
-from dtid.acquisition.logfile import read_log
+from dtid.acquisition.logfile import read_log, read_log_checked
+from dtid.acquisition.recorder import Recorder
 from dtid.acquisition.sequence import ZERO_REQUESTS, ToolFrames
 from dtid.acquisition.stream import REPLAY_PAGE, decode_event
 from dtid.dbc.checksum import verify_checksum
@@ -522,3 +526,64 @@ def test_endpoint_in_use_is_refused_before_any_session(tmp_path: Path) -> None:
     finally:
         blocker.close(0)
     assert list((tmp_path / "runs").iterdir()) == []
+
+
+class _FullDisk:
+    """A log file whose disk fills up: writes fail with ENOSPC after ``allowed`` of them."""
+
+    def __init__(self, file: object, allowed: int) -> None:
+        self._file, self._allowed = file, allowed
+
+    def write(self, data: bytes) -> int:
+        if self._allowed <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        self._allowed -= 1
+        return self._file.write(data)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._file, name)
+
+
+def test_a_full_disk_stops_the_test_with_zero_torque_and_keeps_the_log(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    class FillingRecorder(Recorder):
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            super().__init__(*args, **kwargs)
+            self._writer.file = _FullDisk(self._writer.file, allowed=20)
+
+    monkeypatch.setattr(daemon_module, "Recorder", FillingRecorder)
+    config = make_config(tmp_path)
+    ecu = FakeEcu(config.bus.channel)
+    lines: list[str] = []
+    result = run_daemon(config, ecu, report=lines.append)
+    assert (result.status, result.reason) == ("aborted", "log_write")
+    assert result.exit_status == EXIT_ABORTED
+    assert any("No space left on device" in line and "frames kept" in line for line in lines)
+    # the vehicle got the zero requests
+    last = INTERFACE.decode(by_id(ecu.received, REQUEST_ID))["test_torque"]
+    assert last.extra["enable"][-ZERO_REQUESTS:].tolist() == [0] * ZERO_REQUESTS
+    # what was written before is readable
+    frames, integrity = read_log_checked(result.log_path)
+    assert len(frames) > 0 and integrity.cut is not None
+
+
+def test_a_removed_output_directory_stops_the_test_the_same_way(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    class VanishingRecorder(Recorder):
+        def __init__(self, *args: object, **kwargs: object) -> None:
+            super().__init__(*args, **kwargs)
+            self._writer.file = _FullDisk(self._writer.file, allowed=6)
+            self._writer.file.write = self._vanish  # type: ignore[method-assign]
+
+        def _vanish(self, data: bytes) -> int:
+            raise OSError(errno.ENOENT, "the output directory was removed")
+
+    monkeypatch.setattr(daemon_module, "Recorder", VanishingRecorder)
+    config = make_config(tmp_path)
+    ecu = FakeEcu(config.bus.channel)
+    result = run_daemon(config, ecu)
+    assert (result.status, result.reason) == ("aborted", "log_write")
+    last = INTERFACE.decode(by_id(ecu.received, REQUEST_ID))["test_torque"]
+    assert last.extra["enable"][-ZERO_REQUESTS:].tolist() == [0] * ZERO_REQUESTS
