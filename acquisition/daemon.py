@@ -185,6 +185,8 @@ class Daemon:
                     self._loop()
                 except KeyboardInterrupt:
                     self._abort("signal")
+                except can.CanError as error:
+                    self._bus_failed("receiving", error)
                 except Exception:
                     logger.exception("the acquisition failed; aborting the test")
                     self._abort("error")
@@ -262,7 +264,11 @@ class Daemon:
             elif self._path.alarm is not None:
                 self._abort(self._path.alarm)
             elif self._sender.failure is not None:
-                self._abort("error")
+                failure = self._sender.failure
+                if isinstance(failure, can.CanError):
+                    self._bus_failed("sending", failure)
+                else:
+                    self._abort("error")
             elif self._recorder.failure is not None:
                 self._abort("log_write")
             if self._status is not None:
@@ -322,6 +328,11 @@ class Daemon:
         if phase.name == "done":
             self._status, self._t_end = "completed", t_s
 
+    def _bus_failed(self, doing: str, error: can.CanError) -> None:
+        """Abort on an error the bus reported, saying what it reported."""
+        self.report(f"bus: error while {doing}: {error}")
+        self._abort("bus_error")
+
     def _abort(self, reason: str) -> None:
         """Abort the test (first reason wins): stop the sequence, the zero requests go out."""
         if self._status is not None:
@@ -342,9 +353,12 @@ class Daemon:
         )
         deadline = time.monotonic() + grace
         drained = False
-        with contextlib.suppress(Exception):  # the bus may be what failed
-            while (sender.running() or not drained) and time.monotonic() < deadline:
+        while (sender.running() or not drained) and time.monotonic() < deadline:
+            try:
                 drained = self._pump()
+            except Exception:  # the bus may be what failed: wait for the zero requests alone
+                drained = True
+                sender.join(max(0.0, deadline - time.monotonic()))
         if self._status == "aborted" and not sender.running():
             try:
                 sender.send_zero_requests()  # when the thread never started or failed

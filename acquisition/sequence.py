@@ -252,11 +252,23 @@ class RequestSender:
             self._heartbeats_sent += 1
         period_wall = frames.plan.request_period_s / self._clock.time_factor
         deadline = time.time()
+        refused: list[str] = []
         for _ in range(ZERO_REQUESTS):
             time.sleep(max(0.0, deadline - time.time()))
-            self._send(frames.zero_request(self._requests_sent, self._clock.now()))
+            try:  # each one, whatever the bus did to the one before (a full buffer may clear)
+                self._send(frames.zero_request(self._requests_sent, self._clock.now()))
+            except can.CanError as error:
+                refused.append(str(error))
             self._requests_sent += 1
             deadline += period_wall
+        if refused:
+            logger.error(
+                "the bus refused %d of %d zero requests (%s); the vehicle's request timeout "
+                "zeroes the test torque",
+                len(refused),
+                ZERO_REQUESTS,
+                refused[-1],
+            )
 
     def _send(self, frame: can.Message) -> None:
         self._echo.expect(frame)

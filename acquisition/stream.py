@@ -54,6 +54,8 @@ ABORT_REASONS = {
     "foreign_tx": "another node sends frames with the tool's own test-torque request ID",
     "signal": "the daemon was told to stop (SIGINT or SIGTERM)",
     "error": "the daemon failed (bus error or internal error); see its log",
+    "bus_error": "the CAN bus reported an error (bus-off, interface down, send buffer full); "
+    "the zero requests were sent as far as the bus took them",
     "log_write": "the raw log cannot be written (a full disk, a removed output directory); "
     "what was written before is kept",
 }

@@ -587,3 +587,54 @@ def test_a_removed_output_directory_stops_the_test_the_same_way(
     assert (result.status, result.reason) == ("aborted", "log_write")
     last = INTERFACE.decode(by_id(ecu.received, REQUEST_ID))["test_torque"]
     assert last.extra["enable"][-ZERO_REQUESTS:].tolist() == [0] * ZERO_REQUESTS
+
+
+@pytest.mark.parametrize(
+    ("where", "error"),
+    [
+        ("send", can.CanOperationError("Transmit buffer full [Error Code 105]")),
+        ("send", can.CanOperationError("bus-off")),
+        ("recv", can.CanOperationError("Network is down [Error Code 100]")),
+    ],
+)
+def test_a_bus_error_aborts_with_zero_requests_and_says_what_the_bus_reported(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, where: str, error: can.CanError
+) -> None:
+    """A bus double raising python-can's errors mid-test: on sending, after 60 frames (for a
+    full buffer, once; for bus-off, from then on but for the zero requests it lets through);
+    on receiving, after 200 frames."""
+    real_open = daemon_module.open_bus
+    sends = {"n": 0, "refused": 0}
+
+    def open_faulty(config: object) -> can.BusABC:
+        bus = real_open(config)
+        send, recv = bus.send, bus.recv
+        received = {"n": 0}
+
+        def faulty_send(frame: can.Message, timeout: float | None = None) -> None:
+            sends["n"] += 1
+            if where == "send" and sends["n"] == 60:
+                sends["refused"] += 1
+                raise error
+            send(frame, timeout)
+
+        def faulty_recv(timeout: float | None = None) -> can.Message | None:
+            frame = recv(timeout)
+            received["n"] += frame is not None
+            if where == "recv" and received["n"] > 200:
+                raise error
+            return frame
+
+        bus.send, bus.recv = faulty_send, faulty_recv
+        return bus
+
+    monkeypatch.setattr(daemon_module, "open_bus", open_faulty)
+    config = make_config(tmp_path)
+    ecu = FakeEcu(config.bus.channel)
+    lines: list[str] = []
+    result = run_daemon(config, ecu, report=lines.append)
+    assert (result.status, result.reason) == ("aborted", "bus_error")
+    assert any(line.startswith("bus: error while") and str(error) in line for line in lines)
+    last = INTERFACE.decode(by_id(ecu.received, REQUEST_ID))["test_torque"]
+    assert last.extra["enable"][-ZERO_REQUESTS:].tolist() == [0] * ZERO_REQUESTS
+    assert read_log_checked(result.log_path)[0]
