@@ -115,12 +115,16 @@ class PipelineConfig:
         Worker PUB of progress, FRFs and results.
     block_period_s
         Longest time (wall) a decoded sample waits in the daemon before its block is sent, s.
+    keys
+        Folder of the ZeroMQ CURVE keys (``dtid keys DIR``), required by any ``tcp://``
+        endpoint other than loopback (:mod:`dtid.acquisition.security`); None: none.
     """
 
     blocks: str = ""
     replay: str = ""
     results: str = ""
     block_period_s: float = 0.002
+    keys: Path | None = None
 
     def __post_init__(self) -> None:
         runtime = default_runtime_dir()

@@ -25,6 +25,7 @@ import zmq
 
 from dtid.acquisition.config import PipelineConfig
 from dtid.acquisition.ipc import private_folder
+from dtid.acquisition.security import Security
 from dtid.acquisition.stream import KINDS, REPLAY_PAGE, encode_event
 from dtid.errors import ConfigError
 
@@ -36,13 +37,15 @@ SEND_HWM = 100_000
 """Events the PUB socket queues per subscriber before it drops (the replay still has them)."""
 
 
-def bind(socket: zmq.Socket, endpoint: str, what: str) -> None:
-    """Bind a socket, creating the directory of an ipc endpoint.
+def bind(socket: zmq.Socket, endpoint: str, what: str, security: Security | None = None) -> None:
+    """Bind a socket, creating the private folder of an ipc endpoint and securing a TCP one
+    (:mod:`dtid.acquisition.security`).
 
     Raises
     ------
     ConfigError
-        If the endpoint is malformed, in use, or its directory cannot be created.
+        If the endpoint is malformed, in use, reachable from other machines without keys, or
+        its folder is not safe.
     """
     try:
         if endpoint.startswith("ipc://"):
@@ -53,6 +56,7 @@ def bind(socket: zmq.Socket, endpoint: str, what: str) -> None:
                     f"[pipeline] {what} = {endpoint!r}: cannot bind: another process (a daemon "
                     "still running?) serves it"
                 )
+        (security or Security(None, zmq.Context.instance())).bind(socket, endpoint, what)
         socket.bind(endpoint)
     except (OSError, zmq.ZMQError) as error:
         raise ConfigError(f"[pipeline] {what} = {endpoint!r}: cannot bind: {error}") from error
@@ -101,12 +105,14 @@ class EventServer:
         self._publisher.setsockopt(zmq.LINGER, 1000)
         replay = self._context.socket(zmq.REP)
         replay.setsockopt(zmq.LINGER, 0)
+        self._security = Security(pipeline.keys, self._context)
         try:
-            bind(self._publisher, pipeline.blocks, "blocks")
-            bind(replay, pipeline.replay, "replay")
+            bind(self._publisher, pipeline.blocks, "blocks", self._security)
+            bind(replay, pipeline.replay, "replay", self._security)
         except ConfigError:
             self._publisher.close(0)
             replay.close(0)
+            self._security.close()
             raise
         self._stop = threading.Event()
         self._thread = threading.Thread(
@@ -140,6 +146,7 @@ class EventServer:
         self._stop.set()
         self._thread.join()
         self._publisher.close()
+        self._security.close()
 
     def _serve(self, replay: zmq.Socket) -> None:
         try:

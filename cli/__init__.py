@@ -17,6 +17,7 @@ from dtid.cli.commands import (
     frf,
     identify,
     inspect,
+    keys,
     profile,
     simulate,
     vehicle,
@@ -24,7 +25,7 @@ from dtid.cli.commands import (
 )
 from dtid.errors import DtidError
 
-COMMANDS = (demo, simulate, inspect, frf, identify, profile, acquire, worker, vehicle)
+COMMANDS = (demo, simulate, inspect, frf, identify, profile, acquire, worker, vehicle, keys)
 EXIT_USER_ERROR = 2
 
 

@@ -47,6 +47,8 @@ import zmq
 
 from dtid.acquisition.config import PipelineConfig
 from dtid.acquisition.ipc import private_folder
+from dtid.acquisition.security import Security
+from dtid.acquisition.server import bind
 from dtid.acquisition.stream import KINDS, REPLAY_PAGE
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
@@ -195,6 +197,7 @@ class Worker:
         """Status of each session served: ``completed``, ``aborted`` or ``error``."""
         self._outbox: queue.SimpleQueue[tuple[str, dict[str, Any]]] = queue.SimpleQueue()
         self._req: zmq.Socket | None = None
+        self._security = Security(self.pipeline.keys, self.context)
         self._req_sent = 0.0
         self._req_waiting = False
         self._replayed = False
@@ -218,10 +221,18 @@ class Worker:
         sub.setsockopt(zmq.RCVHWM, 0)  # never drop: the IO thread buffers while we compute
         sub.setsockopt(zmq.LINGER, 0)
         sub.setsockopt(zmq.SUBSCRIBE, b"")
-        sub.connect(endpoint(self.pipeline.blocks))
+        blocks = endpoint(self.pipeline.blocks)
+        self._security.connect(sub, blocks, "blocks")
+        sub.connect(blocks)
         self._pub = self.context.socket(zmq.PUB)
         self._pub.setsockopt(zmq.LINGER, 1000)
-        self._pub.bind(endpoint(self.pipeline.results, bind=True))
+        try:
+            bind(self._pub, endpoint(self.pipeline.results, bind=True), "results", self._security)
+        except ConfigError:
+            sub.close(linger=0)
+            self._pub.close(linger=0)
+            self._security.close()
+            raise
         self._poller = zmq.Poller()
         self._poller.register(sub, zmq.POLLIN)
         self._ask(0)
@@ -250,6 +261,7 @@ class Worker:
             sub.close(linger=0)
             self._pub.close()
             self._pub = None
+            self._security.close()
 
     @property
     def _replay(self) -> str:
@@ -320,6 +332,7 @@ class Worker:
         if self._req is None:
             self._req = self.context.socket(zmq.REQ)
             self._req.setsockopt(zmq.LINGER, 0)
+            self._security.connect(self._req, self._replay, "replay")
             self._req.connect(self._replay)
             self._poller.register(self._req, zmq.POLLIN)
         self._req.send(json.dumps({"from_seq": from_seq}).encode())
