@@ -3,9 +3,9 @@
 Whoever can create the socket files of the pipeline can feed the worker or read the stream. A
 predictable folder (``/tmp/dtid-UID`` without ``XDG_RUNTIME_DIR``) that another local user made
 first would be theirs; so the folder is made with mode 0700 when missing, and an existing one is
-used only when it is a real directory (not a symbolic link), owned by this user and not writable
-by others. A shared folder the administrator made for both services (``/run/dtid``, 0750, owned
-by the service user: deploy/systemd/dtid.tmpfiles) passes.
+used only when it is a real directory (not a symbolic link), owned by this user and writable by
+no one else (neither its group nor every user). A shared folder the administrator made for both
+services (``/run/dtid``, 0750, owned by the service user: deploy/systemd/dtid.tmpfiles) passes.
 """
 
 from __future__ import annotations
@@ -43,6 +43,8 @@ def private_folder(path: Path) -> Path:
         problem = f"belongs to user id {info.st_uid}, not to this user ({os.geteuid()})"
     elif info.st_mode & stat.S_IWOTH:
         problem = "is writable by every user"
+    elif info.st_mode & stat.S_IWGRP:
+        problem = "is writable by its group"
     if problem:
         raise ConfigError(
             f"the ipc folder {path} {problem}: another user could take over the pipeline's "

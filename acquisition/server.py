@@ -76,6 +76,18 @@ def _listening(path: Path) -> bool:
     return True
 
 
+MAX_REQUEST_BYTES = 1024
+"""Longest replay request answered (a valid one has about 20 bytes); ZeroMQ drops a client whose
+message exceeds 1 MiB before it reaches the server."""
+LOGGED_REFUSALS = 20
+"""Bad replay requests logged one by one; the rest are counted (``refused``)."""
+
+
+def _short(error: BaseException) -> str:
+    text = " ".join(str(error).split()) or type(error).__name__
+    return text[:120]
+
+
 class EventServer:
     """Number, publish and keep the events of one session; serve the replay.
 
@@ -105,6 +117,9 @@ class EventServer:
         self._publisher.setsockopt(zmq.LINGER, 1000)
         replay = self._context.socket(zmq.REP)
         replay.setsockopt(zmq.LINGER, 0)
+        replay.setsockopt(zmq.MAXMSGSIZE, 1 << 20)
+        self.refused = 0
+        """Bad replay requests answered with an error."""
         self._security = Security(pipeline.keys, self._context)
         try:
             bind(self._publisher, pipeline.blocks, "blocks", self._security)
@@ -159,13 +174,22 @@ class EventServer:
             replay.close(0)
 
     def _answer(self, request: bytes) -> bytes:
+        """The reply to one request: a page of events, or ``{"error": ...}`` for anything that
+        is not ``{"from_seq": N}`` (never an exception: the replay thread must outlive a
+        hostile client)."""
         try:
+            if len(request) > MAX_REQUEST_BYTES:
+                raise ValueError(f"request of {len(request)} bytes (at most {MAX_REQUEST_BYTES})")
             query = json.loads(request)
+            if not isinstance(query, dict) or set(query) != {"from_seq"}:
+                raise ValueError("the request is not an object with the one key from_seq")
             from_seq = query["from_seq"]
             if isinstance(from_seq, bool) or not isinstance(from_seq, int):
                 raise TypeError("from_seq must be an integer")
-        except (ValueError, KeyError, TypeError) as error:
-            logger.warning("bad replay request %r: %s", request[:80], error)
-            message = f'expected {{"from_seq": N}}: {error}'
+        except (ValueError, TypeError, RecursionError) as error:
+            self.refused += 1
+            if self.refused <= LOGGED_REFUSALS:
+                logger.warning("bad replay request %r: %s", request[:80], error)
+            message = f'expected {{"from_seq": N}}: {_short(error)}'
             return json.dumps({"error": message}).encode()
         return self.replay(from_seq)

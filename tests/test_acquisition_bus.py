@@ -14,6 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 import zmq
 
@@ -192,3 +193,57 @@ def test_cli_bus_error_is_one_line_and_exit_2(tmp_path: Path) -> None:
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and SETUP_HINT in lines[0]
     assert not any(tmp_path.iterdir())  # no session is made for a bus that does not open
+
+
+def _hostile_requests(rng: np.random.Generator, n: int) -> list[bytes]:
+    """Random bytes, JSON of every wrong shape, deep nesting, numbers out of range, huge."""
+    shapes = [
+        b"",
+        b"null",
+        b"[]",
+        b'{"from_seq": "0"}',
+        b'{"from_seq": 1.5}',
+        b'{"from_seq": true}',
+        b'{"from_seq": 0, "and": 1}',
+        b'{"from_seq": -99999999999999999999999}',
+        b'{"from_seq": 99999999999999999999999}',
+        b"[" * 100_000,
+        b'{"from_seq": ' + b"9" * 5000 + b"}",
+        b'{"x": "' + b"a" * 200_000 + b'"}',
+    ]
+    requests = []
+    for i in range(n):
+        if i % 3 == 0:
+            requests.append(shapes[i // 3 % len(shapes)])
+        else:
+            requests.append(
+                rng.integers(0, 256, int(rng.integers(0, 64)), dtype=np.uint8).tobytes()
+            )
+    return requests
+
+
+def test_hostile_replay_requests_get_an_error_and_the_replay_goes_on(
+    pipeline: PipelineConfig,
+) -> None:
+    """10^4 fuzzed requests: each gets an answer, the replay thread lives on and still serves."""
+    server = EventServer(pipeline, "s")
+    context = zmq.Context.instance()
+    socket_ = context.socket(zmq.REQ)
+    socket_.connect(pipeline.replay)
+    try:
+        server.publish("phase", {"phase": "settle"})
+        requests = _hostile_requests(np.random.default_rng(11), 10_000)
+        answers = 0
+        for request in requests:
+            socket_.send(request)
+            assert socket_.poll(5000), f"no answer to {request[:40]!r}"
+            reply = json.loads(socket_.recv())
+            answers += 1
+            if not (isinstance(reply, list) or "error" in reply):
+                raise AssertionError(f"{request[:40]!r} -> {reply!r}")
+        assert answers == len(requests)
+        assert server.refused > 9_000
+        assert replay(pipeline.replay, b'{"from_seq": 0}')[0]["phase"] == "settle"
+    finally:
+        socket_.close(0)
+        server.close()

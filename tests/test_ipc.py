@@ -23,12 +23,15 @@ def test_a_shared_service_folder_passes(tmp_path: Path) -> None:
     assert private_folder(folder) == folder
 
 
-@pytest.mark.parametrize("problem", ["writable by every user", "symbolic link", "not a directory"])
+@pytest.mark.parametrize(
+    "problem",
+    ["writable by every user", "writable by its group", "symbolic link", "not a directory"],
+)
 def test_an_unsafe_folder_is_refused(tmp_path: Path, problem: str) -> None:
     folder = tmp_path / "dtid"
-    if problem == "writable by every user":
+    if problem.startswith("writable"):
         folder.mkdir()
-        folder.chmod(0o777)
+        folder.chmod(0o777 if "every" in problem else 0o770)
     elif problem == "symbolic link":
         (tmp_path / "elsewhere").mkdir()
         folder.symlink_to(tmp_path / "elsewhere")
