@@ -23,6 +23,7 @@ from dtid.dbc.loader import load_interface
 from dtid.dbc.resources import DEFAULT_DBC
 from dtid.identification.pipeline import run_identification
 from dtid.identification.search.identify import SearchSettings
+from dtid.identification.search.parameterization import theta_from_parameters
 from dtid.simulator.parameters import reference_parameters
 from dtid.workflow import measured_tests
 
@@ -42,7 +43,7 @@ SEARCH = SearchSettings(generations=12, polish_evaluations=300)
 BUDGET = ["--generations", str(SEARCH.generations), "--polish-evaluations"]
 BUDGET += [str(SEARCH.polish_evaluations), "--profile-points", "0"]
 TOLERANCE = {"J1": 0.05, "J2": 0.05, "J3": 0.05, "c12": 0.05, "c23": 0.05, "eps12": 0.1}
-TOLERANCE |= {"d12": 0.2, "d23": 0.2, "K": 0.05}
+TOLERANCE |= {"d12": 0.2, "d23": 0.2, "K": 0.05, "J_sum": 0.05, "x1": 0.05, "x12": 0.05}
 """Issue 3's offline tolerances, except the DMF play's: 30 s chirps carry half the data of the
 offline test's 60 s, and eps12 came out 9 % low in one of twelve runs, where the objective at the
 truth (0.275) lay above the one at the result (0.251): the data's own scatter, which no search
@@ -51,13 +52,23 @@ profile is flat on all six simulated truths); they are reported, not asserted. A
 Tc12 here asserted the prior, which is the truth: once the search could leave it, one
 fault-test log fitted Tc12 -72 % better than the truth on eight fresh model draws (eq. 17:
 0.205 against 0.234)."""
-FIRM = ("J1", "J2", "J3", "c12", "c23", "eps12", "K")
-"""What the fault test asserts: its vehicle's data (plant noise seed 2 with the faults) fit the
-truth poorly (eq. 17 at the truth 0.20-0.27, against 0.11 on the restart test's logs; K from their
-10 N*m run 2-4 % low, the cause not yet found: the same faults injected offline into a clean log
-change nothing), and there the DMF damping and friction trade against each other: on one log the
-search's last stage found d12 -28 % and Tc12 +65 %, fitting better than the truth on eight fresh
-model draws (0.183 against 0.199). The dampings are reported there, not asserted."""
+FIRM = ("J_sum", "x1", "x12", "K")
+"""What the fault test asserts: the inertias' sum and ratios and K, which the search pins on every
+vehicle of the randomised trial (docs/accuracy.md). Its vehicle's data (plant noise seed 2 with
+the faults, paced by the wall clock, so never the same twice) fit the truth poorly (eq. 17 at the
+truth 0.20-0.27, against 0.11 on the restart test's logs), and with the test's reduced search
+budget the couplings' stiffnesses, plays, dampings and friction land in different minima from
+run to run (one run: J2 +6.4, c12 -5.5, eps12 -8.2, d12 +11 %; the search's sensitivity to the
+model's noise is measured in docs/accuracy.md). A miss among them fails the test only when the
+truth fits the log better than what was found (:func:`fit_at_truth`), as in the restart test."""
+
+
+def relative_errors(document: dict) -> dict[str, float]:
+    """Relative errors of an identification JSON's parameters against the reference vehicle."""
+    truth = reference_parameters()
+    values = {**truth.as_dict(), **theta_from_parameters(truth)}
+    found = document["parameters"]
+    return {name: found[name] / values[name] - 1 for name in values if name in found}
 
 
 def count_faults(log: Path) -> tuple[int, int, int]:
@@ -113,12 +124,7 @@ def test_live_identification_survives_a_worker_restart_and_equals_the_replay(
     assert summary["worker"] == 0, summary["worker_err"]
     session = Path(summary["session"])
     live = json.loads((session / "identification.json").read_text())
-    truth = reference_parameters().as_dict()
-    errors = {
-        name: live["parameters"][name] / truth[name] - 1
-        for name in truth
-        if name in live["parameters"]
-    }
+    errors = relative_errors(live)
     print("live identification, relative errors:", {k: f"{v:+.3f}" for k, v in errors.items()})
     # the daemon's own log, identified offline, gives the same parameters
     log = next(session.glob("*.blf"))
@@ -207,16 +213,16 @@ def test_frames_dropped_duplicated_and_corrupted_are_reported_and_the_result_hol
     identification = Path(summary["session"]) / "identification.json"
     if identification.exists():
         live = json.loads(identification.read_text())
-        truth = reference_parameters().as_dict()
-        errors = {
-            name: live["parameters"][name] / truth[name] - 1
-            for name in truth
-            if name in live["parameters"]
-        }
+        errors = relative_errors(live)
         print("identified with faults:", {k: f"{v:+.3f}" for k, v in errors.items()})
         # what a miss needs to be understood: the fit, the vehicle's lateness, the worker's log
         context = (live["nrmse"], summary["vehicle_report"], summary["worker_err"][-2000:])
         for name in FIRM:
             assert abs(errors[name]) <= TOLERANCE[name], (name, errors[name], context)
+        misses = {n: errors[n] for n, limit in TOLERANCE.items() if abs(errors[n]) > limit}
+        if misses:  # the tool's miss only if the truth fits the log better than what was found
+            found, at_truth = fit_at_truth(next(Path(summary["session"]).glob("*.blf")))
+            print(f"{misses}; eq. (17) {found:.4f} found, {at_truth:.4f} at the truth")
+            assert found <= at_truth, (misses, found, at_truth, context)
     else:
         assert "cannot give an FRF" in summary["worker_err"], summary["worker_err"]
