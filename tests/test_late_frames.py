@@ -49,6 +49,20 @@ def test_a_burst_after_a_stall_goes_back_to_its_slots() -> None:
     assert np.all(np.diff(retimed.times) > 0)
 
 
+def test_two_stalls_in_a_row_both_go_back_to_their_slots() -> None:
+    """Seen in CI on the HIL bus: a 71 ms stall released 4 samples, a 67 ms one 5 more right
+    after; the second burst's slots count from the first burst's last sample as re-timed, not
+    as received (else it seemed to have too few slots and stayed 50 us apart, and the speed's
+    spline through it turned the run's FRF to noise)."""
+    truth = engine_times()
+    first = truth[100] - 1e-4
+    received = stall(stall(truth, first, 0.071), first + 0.071 + 1e-4, 0.067)
+    retimed = retime_late_bursts(received)
+    assert retimed.n_moved >= 8
+    assert np.max(np.abs(retimed.times - truth)) < 1.5e-3
+    assert np.all(np.diff(retimed.times) > 0.5 * INTERVAL)
+
+
 def test_clean_and_jittery_times_are_left_alone() -> None:
     truth = engine_times()
     assert retime_late_bursts(truth).n_moved == 0

@@ -46,7 +46,9 @@ def retime_late_bursts(times: np.ndarray, interval_s: float | None = None) -> Re
     """Put samples that arrived late in a burst back on their crank slots.
 
     A burst is a run of samples each closer than :data:`BURST_INTERVALS` intervals to the one
-    before, right after a gap of at least :data:`GAP_INTERVALS` intervals. The span from the
+    before, right after a gap of at least :data:`GAP_INTERVALS` intervals; a burst followed at
+    once by another stall and its burst (two stalls in a row, seen on a loaded host) is one
+    late stretch with it. The span from the
     sample before the gap to the first sample after the burst is cut into whole intervals; the
     burst's samples take its last slots, in order, evenly spaced. A burst with more samples than
     the span has slots is left alone (no crank-synchronous timing explains it). The slots' width
@@ -75,11 +77,19 @@ def retime_late_bursts(times: np.ndarray, interval_s: float | None = None) -> Re
         return Retiming(t, 0, 0.0)
     close = spacing < BURST_INTERVALS * interval
     out = t.copy()
-    for gap in np.flatnonzero(spacing >= GAP_INTERVALS * interval):
+    gaps = spacing >= GAP_INTERVALS * interval
+    done = -1
+    for gap in np.flatnonzero(gaps):
+        if gap < done:
+            continue  # inside a chain of bursts already re-timed
         first = gap + 1
         last = first
         while last < len(spacing) and close[last]:
             last += 1
+            # a stall right after the burst, releasing another burst: one late stretch
+            if last < len(spacing) and gaps[last] and last + 1 < len(spacing) and close[last + 1]:
+                last += 1
+        done = last
         n_burst = last - first + 1
         if n_burst < 2:
             continue  # one late sample is jitter, or a loss; nothing to re-time
