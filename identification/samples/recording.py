@@ -69,8 +69,9 @@ class Recording:
         Parameters
         ----------
         warn
-            Log the pauses in the test-torque requests (:meth:`warn_pauses`); a caller that
-            reads a growing session again and again warns once per new pause instead.
+            Log the pauses in the test-torque requests (:meth:`warn_pauses`) and the requests
+            the ECU drops; a caller that reads a growing session again and again warns once per
+            new pause instead.
         """
         missing = [
             role
@@ -88,7 +89,7 @@ class Recording:
         return TestData(
             speed=self._crank_series("speed"),
             mean_torque=self._crank_series("mean_torque"),
-            test_torque=self._applied_test_torque(),
+            test_torque=self._applied_test_torque(warn),
             torque_request=self._crank_series("torque_request")
             if request is not None and len(request.timestamps) > 1
             else None,
@@ -112,8 +113,9 @@ class Recording:
             )
         return len(pauses)
 
-    def _applied_test_torque(self) -> Series:
-        """The test torque the ECU applied, from the requests the recording holds, N*m.
+    def _applied_test_torque(self, warn: bool = True) -> Series:
+        """The test torque the ECU applied, from the requests the recording holds, N*m (with a
+        warning for the requests the ECU drops when ``warn``).
 
         The ECU's own rules (:func:`dtid.dbc.ecu_requests.applied_test_torque`): a request holds
         until the next, zero once ``request_timeout_s`` has passed without one (the tool
@@ -129,7 +131,7 @@ class Recording:
             decoded.extra,
             self.request_timeout_s,
         )
-        if rules.dropped:
+        if warn and rules.dropped:
             logger.warning(
                 "%s: %s test-torque request(s) the ECU drops (%s); the test torque is taken as "
                 "the ECU applied it",
