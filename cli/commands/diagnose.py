@@ -1,0 +1,135 @@
+"""``dtid diagnose``: is the identified model adequate, and where does it miss the recordings.
+
+Identifies first (as ``dtid identify``, profiles off unless asked for) unless given the
+identification JSON of these recordings. The two largest amplitudes identify and the others
+validate, as in ``dtid identify``. Every run's |G_DRV| is compared with the model's, bin by bin,
+each bin standardised by the scatter a recording of the model itself shows there; bands where
+the difference is significant (family-wise error 1 %) make the mismatch map, and for each run
+the coupling values it would ask for on its own are reported as hints. This version locates and
+quantifies a mismatch but models no missing mechanism yet (docs/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from dtid.cli.commands.common import (
+    add_interface_options,
+    add_vehicle_option,
+    positive_float,
+    vehicle_data,
+)
+from dtid.cli.commands.identify import _progress, add_search_options, search_settings
+from dtid.errors import ConfigError
+from dtid.identification.diagnosis.diagnose import Diagnosis, diagnose_document, diagnose_report
+from dtid.jsonfile import write_json
+from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.workflow import identify, measured_tests
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register the subcommand."""
+    parser = subparsers.add_parser(
+        "diagnose",
+        help="locate where the identified model misses the recordings",
+        description=__doc__,
+    )
+    parser.add_argument("recordings", type=Path, nargs="+", metavar="RECORDING")
+    parser.add_argument(
+        "--identification",
+        type=Path,
+        metavar="ID.json",
+        help="the JSON `dtid identify --json` wrote for these recordings (default: identify)",
+    )
+    parser.add_argument(
+        "--identify",
+        type=positive_float,
+        nargs="+",
+        metavar="NM",
+        help="amplitudes that identify (default: the two largest); the others validate",
+    )
+    parser.add_argument(
+        "--prior",
+        type=Path,
+        help="parameter set (TOML) the identification's bounds centre on (default: reference)",
+    )
+    add_vehicle_option(parser)
+    add_search_options(parser)
+    parser.set_defaults(profile_points=0)
+    parser.add_argument("--json", type=Path, help="write the diagnosis as JSON")
+    parser.add_argument("--plot", type=Path, help="plot the mismatch map and the FRFs")
+    add_interface_options(parser)
+    parser.set_defaults(run=run)
+
+
+def read_identification(path: Path) -> dict:
+    """An identification JSON, or a clear error."""
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise ConfigError(f"cannot read --identification {path}: {error.strerror}") from None
+    except json.JSONDecodeError as error:
+        raise ConfigError(f"--identification {path} is not JSON: {error}") from None
+    if not isinstance(document, dict) or "parameters" not in document:
+        raise ConfigError(
+            f"--identification {path} is not an identification JSON (no 'parameters'): give "
+            "the file `dtid identify --json` wrote"
+        )
+    return document
+
+
+def run(args: argparse.Namespace) -> int:
+    """Diagnose, print the verdict first, write JSON and plot as asked."""
+    vehicle = vehicle_data(args)
+    if args.identification is not None:
+        document = read_identification(args.identification)
+        tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle)
+        diagnosis = diagnose_document(tests, document, args.identify)
+    else:
+        report = identify(
+            args.recordings,
+            dbc=args.dbc,
+            signals=args.signals,
+            vehicle=vehicle,
+            prior=load_parameters(args.prior) if args.prior else reference_parameters(),
+            identify_amplitudes=args.identify,
+            settings=search_settings(args),
+            profile_points=args.profile_points,
+            progress=_progress,
+        )
+        diagnosis = diagnose_report(report)
+    print_diagnosis(diagnosis)
+    if args.json:
+        write_json(args.json, diagnosis.as_dict())
+    if args.plot:
+        from dtid.identification.diagnosis.figure import plot_mismatch
+
+        plot_mismatch(diagnosis, args.plot)
+        print(f"plot: {args.plot}")
+    return 0
+
+
+def print_diagnosis(diagnosis: Diagnosis) -> None:
+    """The verdict first, then the bands, the per-run hints and the test's figures."""
+    print(diagnosis.sentence())
+    for band in diagnosis.mismatch.bands:
+        print(
+            f"mismatch |G_{band.frf.upper()}| {band.label} ({band.role}): {band.f_lo_hz:.2f}-"
+            f"{band.f_hi_hz:.2f} Hz, {band.excess_db:+.2f} dB at {band.peak_hz:.2f} Hz, "
+            f"p = {band.p_value:.2g}, coherence {band.coherence:.2f}"
+        )
+    for hint in diagnosis.hints:
+        edge = " (grid edge)" if hint.at_edge else ""
+        print(
+            f"hint {hint.name} {hint.label} ({hint.role}): {hint.effective:.4g}{edge} against "
+            f"{hint.identified:.4g}, NRMSE {hint.nrmse_identified:.3f} -> "
+            f"{hint.nrmse_effective:.3f}"
+        )
+    test = diagnosis.mismatch
+    print(
+        f"test: {test.effective_bins:.0f} effective bins (neighbour correlation "
+        f"{test.correlation:.2f}), |z| threshold {test.threshold_z:.2f}, global p = "
+        f"{test.global_p_value:.2g}; {diagnosis.seconds:.1f} s"
+    )

@@ -1,0 +1,1 @@
+"""Missing-physics diagnosis: where the identified model misses the recordings (mismatch)."""

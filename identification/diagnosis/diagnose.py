@@ -1,0 +1,219 @@
+"""The diagnosis of an identification: is the model adequate, and if not, where and how it misses.
+
+:func:`diagnose_report` takes an identification (:class:`dtid.identification.pipeline.
+IdentificationReport`); :func:`diagnose_document` takes the JSON ``dtid identify`` wrote and the
+recordings it came from. Both give a :class:`Diagnosis`: the mismatch map
+(:mod:`dtid.identification.diagnosis.mismatch`), the effective coupling values per run
+(:mod:`dtid.identification.diagnosis.hints`) when something is significant, and the verdict.
+
+This version locates and quantifies a mismatch; it has no library of mechanisms to add to the
+model yet, so a significant mismatch is reported as unexplained, with its bands and hints, and
+``candidates`` is empty (docs/diagnosis.md).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from dtid.errors import ConfigError
+from dtid.identification.diagnosis.hints import EffectiveValue, effective_values
+from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import (
+    IdentificationReport,
+    RunSelection,
+    identification_runs,
+    validation_runs,
+    with_variation,
+)
+from dtid.simulator.parameters import NAMES, DrivetrainParameters
+
+MECHANISMS: tuple[str, ...] = ()
+"""Mechanisms this version can add to the model and refit (none yet; docs/diagnosis.md)."""
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """What the diagnosis found.
+
+    Attributes
+    ----------
+    baseline
+        The identification diagnosed: ``parameters``, ``nrmse`` ({``fit``, ``validation``}),
+        ``objective`` and ``intervals``, as in the identification JSON.
+    parameters
+        Its parameter set.
+    mismatch
+        The mismatch map.
+    hints
+        Effective coupling values per run (empty when the model is adequate).
+    seconds
+        Wall time of the diagnosis (not of the identification), s.
+    """
+
+    baseline: Mapping[str, Any]
+    parameters: DrivetrainParameters
+    mismatch: MismatchMap
+    hints: tuple[EffectiveValue, ...]
+    seconds: float
+
+    @property
+    def adequate(self) -> bool:
+        """True when the model explains the recordings."""
+        return self.mismatch.adequate
+
+    def sentence(self) -> str:
+        """The verdict in one sentence."""
+        test = self.mismatch
+        if self.adequate:
+            return (
+                "The identified model explains these recordings: no band of |G_DRV| differs "
+                f"significantly (family-wise {100 * test.family_error:g} %; the largest "
+                f"deviation has p = {test.global_p_value:.2g})."
+            )
+        first = test.bands[0]
+        where = (
+            f"|G_{first.frf.upper()}| at {first.amplitude_nm:g} N*m, {first.f_lo_hz:.1f}-"
+            f"{first.f_hi_hz:.1f} Hz, {first.excess_db:+.1f} dB, p = {first.p_value:.1g}"
+        )
+        count = len(test.bands)
+        text = (
+            f"The identified model misses these recordings in {count} "
+            f"band{'s' if count > 1 else ''} (most significant: {where}); no mechanism is "
+            "modelled in this version, so the mismatch is unexplained"
+        )
+        hint = self.strongest_hint()
+        if hint:
+            text += f": {hint}"
+        return text + "."
+
+    def strongest_hint(self) -> str:
+        """The parameter whose per-run values improve the fit most, as text ('' if none)."""
+        gains: dict[str, float] = {}
+        for value in self.hints:
+            gains[value.name] = gains.get(value.name, 0.0) + (
+                value.nrmse_identified - value.nrmse_effective
+            )
+        if not gains or max(gains.values()) <= 0:
+            return ""
+        name = max(gains, key=lambda n: gains[n])
+        values = sorted(
+            (h for h in self.hints if h.name == name), key=lambda h: (h.role, h.amplitude_nm)
+        )
+        per_run = ", ".join(
+            f"{h.effective:.4g}{' (edge)' if h.at_edge else ''} at {h.amplitude_nm:g} N*m"
+            f"{'' if h.role == 'fit' else ' (validation)'}"
+            for h in values
+        )
+        return f"the runs ask for {name} = {per_run}, against {values[0].identified:.4g} identified"
+
+    def as_dict(self) -> dict[str, object]:
+        """The JSON document of ``dtid diagnose`` (docs/schemas/diagnosis.schema.json)."""
+        bands = [band.as_dict() for band in self.mismatch.bands]
+        return {
+            "adequate": self.adequate,
+            "mismatch": bands,
+            "baseline": {key: self.baseline[key] for key in ("parameters", "nrmse", "objective")},
+            "candidates": [],
+            "verdict": {
+                "mechanisms": [],
+                "explanation": self.sentence(),
+                "parameters": self.baseline["parameters"],
+                "intervals": self.baseline.get("intervals", {}),
+                "nrmse": self.baseline["nrmse"],
+                "unexplained": bands,
+                "indistinguishable": [],
+            },
+            "test": self.mismatch.as_dict(),
+            "hints": [hint.as_dict() for hint in self.hints],
+            "library": list(MECHANISMS),
+            "seconds": self.seconds,
+        }
+
+
+def diagnose(
+    parameters: DrivetrainParameters,
+    selections: Sequence[tuple[str, RunSelection]],
+    baseline: Mapping[str, Any],
+    draws: int = DRAWS,
+) -> Diagnosis:
+    """Diagnose a parameter set against its identification and validation runs.
+
+    Parameters
+    ----------
+    parameters
+        The identified model.
+    selections
+        ``(role, selection)`` pairs, ``fit`` and ``validation``.
+    baseline
+        The identification's JSON figures (``parameters``, ``nrmse``, ``objective``,
+        ``intervals``).
+    draws
+        Model recordings per run for the scatter.
+    """
+    began = time.perf_counter()
+    found = mismatch_map(parameters, selections, draws)
+    hints = () if found.adequate else tuple(effective_values(parameters, selections))
+    return Diagnosis(baseline, parameters, found, hints, time.perf_counter() - began)
+
+
+def diagnose_report(report: IdentificationReport, draws: int = DRAWS) -> Diagnosis:
+    """Diagnose an identification (:func:`dtid.workflow.identify`'s report)."""
+    if report.fit is None:
+        raise ValueError("the report holds no identification runs to diagnose")
+    selections = [("fit", report.fit)]
+    if report.validation is not None and report.validation.tests:
+        selections.append(("validation", report.validation))
+    return diagnose(report.identification.parameters, selections, report.as_dict(), draws)
+
+
+def diagnose_document(
+    tests: Sequence[MeasuredTest],
+    document: Mapping[str, Any],
+    identify_amplitudes: Sequence[float] | None = None,
+    draws: int = DRAWS,
+) -> Diagnosis:
+    """Diagnose an identification JSON of ``dtid identify`` against the recordings it came from.
+
+    Parameters
+    ----------
+    tests
+        The recordings' tests, as the identification had them.
+    document
+        The identification JSON (its ``parameters``, ``T_loss`` and ``combustion_variation``).
+    identify_amplitudes
+        The amplitudes that identified (default: the two largest).
+    draws
+        Model recordings per run for the scatter.
+
+    Raises
+    ------
+    ConfigError
+        If the document lacks a parameter or does not name the recordings given.
+    """
+    values = dict(document.get("parameters", {}))
+    values["T_loss"] = document.get("T_loss")
+    missing = [name for name in NAMES if not isinstance(values.get(name), int | float)]
+    if missing:
+        raise ConfigError(
+            f"the identification JSON lacks {', '.join(missing)}: give the JSON `dtid identify "
+            "--json` wrote for these recordings"
+        )
+    parameters = DrivetrainParameters(**{name: float(values[name]) for name in NAMES})
+    variations = dict(document.get("combustion_variation", {}))
+    selections = []
+    for role, select in (("fit", identification_runs), ("validation", validation_runs)):
+        selection = select(tests, identify_amplitudes)
+        unknown = [t.name for t in selection.tests if t.name not in variations]
+        if unknown:
+            raise ConfigError(
+                f"the identification JSON has no combustion_variation for {', '.join(unknown)}: "
+                "it was identified from other recordings (or other paths); give the recordings "
+                "it names"
+            )
+        if selection.tests:
+            selections.append((role, with_variation(selection, variations)))
+    return diagnose(parameters, selections, document, draws)

@@ -1,0 +1,444 @@
+"""Where an identified model misses the recordings: standardised residuals, a mismatch map over
+frequency and amplitude, and one global adequacy test.
+
+For every analysed chirp run (identifying and validating alike) the residual is the measured
+|G_DRV| minus the identified model's, in dB, bin by bin. Each is standardised by the scatter a
+recording of the model itself would show there, measured rather than assumed: the model repeats
+the recording ``draws`` times, each time as one recording (one realization, its own draws of the
+combustion variation and the sensors' noise as measured on the vehicle), and the spread of those
+|G_DRV| around their mean is the bin's measurement scatter. The model's own curve (the mean of
+its antithetic realizations) carries part of that scatter as well, 1/``realizations`` of its
+variance, which is added. The coherence formula of Bendat and Piersol (random error of |H| from
+gamma^2 and the number of averages) is not used: in a chirp each bin is seen by about two Welch
+segments, far from the many averages of stationary noise it assumes; the recorded coherence is
+reported per band instead.
+
+Neighbouring bins are correlated (Hann window, half overlap, and the sweep itself). Their
+correlation is measured on the same draws (lag-one autocorrelation of the standardised deviations
+over frequency, pooled over runs) and gives the effective number of independent bins,
+M_eff = N (1 - rho) / (1 + rho). The bins' p-values (Student's t with the scatter's degrees of
+freedom) are compared with Sidak's threshold for a family-wise error rate ``family_error``
+(1 %) over M_eff tests. A band is a run of neighbouring bins whose residual has one sign and
+|z| >= ``EDGE_Z``, holding at least one bin past the threshold; its p-value is family-wise
+adjusted. The global test is the same statistic over every bin of every run: no band, no
+mismatch, and the answer is "the model explains these recordings".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+from scipy import stats
+
+from dtid.identification.frf.closed_loop import FrfEstimate
+from dtid.identification.model.response import model_drv_db
+from dtid.identification.pipeline import RunSelection
+from dtid.simulator.parameters import DrivetrainParameters
+
+FAMILY_ERROR = 0.01
+"""Family-wise error rate of the mismatch map (the chance of any band on a model that is right)."""
+EDGE_Z = 2.0
+"""|z| at which a band's neighbouring bins still belong to it."""
+DRAWS = 16
+"""Recordings of the model drawn to measure each bin's scatter."""
+SMOOTH_BINS = 5
+"""Bins over which each bin's scatter variance is averaged (steadies it, adds freedom)."""
+DRAW_SEED = 7_000
+"""First seed of the draws (apart from the identification's model seeds)."""
+
+
+@dataclass(frozen=True)
+class RunResidual:
+    """Measured minus model |G_DRV| of one chirp run, and its standardisation.
+
+    Attributes
+    ----------
+    label
+        ``recording @ A N*m``.
+    role
+        ``fit`` (an identifying run) or ``validation``.
+    frf
+        ``drv`` (|G_DRV|).
+    amplitude_nm
+        The chirp's amplitude, N*m.
+    frequency_hz
+        Bins, Hz.
+    measured_db, model_db
+        |G_DRV|, dB re 1 (rad/s)/(N*m).
+    scatter_db
+        Standard deviation of a recording's |G_DRV| about the model's, dB.
+    z
+        (measured - model) / scatter.
+    coherence
+        The recording's coherence per bin.
+    """
+
+    label: str
+    role: str
+    frf: str
+    amplitude_nm: float
+    frequency_hz: np.ndarray
+    measured_db: np.ndarray
+    model_db: np.ndarray
+    scatter_db: np.ndarray
+    z: np.ndarray
+    coherence: np.ndarray
+
+    @property
+    def residual_db(self) -> np.ndarray:
+        """Measured minus model, dB."""
+        return self.measured_db - self.model_db
+
+
+@dataclass(frozen=True)
+class MismatchBand:
+    """A band where the model misses a run significantly.
+
+    Attributes
+    ----------
+    frf
+        ``drv`` or ``eng``.
+    label, role, amplitude_nm
+        The run's.
+    f_lo_hz, f_hi_hz
+        The band, Hz.
+    excess_db
+        Measured minus model at the band's most significant bin, dB (positive: the vehicle
+        responds more).
+    p_value
+        Family-wise adjusted p-value of that bin.
+    peak_hz
+        Frequency of that bin, Hz.
+    coherence
+        The recording's median coherence over the band.
+    """
+
+    frf: str
+    label: str
+    role: str
+    amplitude_nm: float
+    f_lo_hz: float
+    f_hi_hz: float
+    excess_db: float
+    p_value: float
+    peak_hz: float
+    coherence: float
+
+    def as_dict(self) -> dict[str, object]:
+        """The band as in the diagnosis JSON's ``mismatch`` list."""
+        return {
+            "frf": self.frf,
+            "amplitude_nm": self.amplitude_nm,
+            "f_lo_hz": self.f_lo_hz,
+            "f_hi_hz": self.f_hi_hz,
+            "excess_db": self.excess_db,
+            "p_value": self.p_value,
+            "peak_hz": self.peak_hz,
+            "run": self.label,
+            "role": self.role,
+            "coherence": self.coherence,
+        }
+
+
+@dataclass(frozen=True)
+class MismatchMap:
+    """The mismatch map of one model against its recordings.
+
+    Attributes
+    ----------
+    residuals
+        Every analysed run's residual.
+    bands
+        The significant bands, most significant first.
+    scatter_scale
+        Factor by which the recordings' roughness scaled the model's scatter up
+        (:func:`scatter_scale`).
+    effective_bins
+        M_eff over all runs.
+    correlation
+        Lag-one correlation of neighbouring bins' deviations.
+    degrees_of_freedom
+        Of the bins' t statistics.
+    threshold_z
+        |z| a bin must pass (Sidak at ``family_error`` over M_eff).
+    global_p_value
+        Family-wise p-value of the largest |z| over every bin: below ``family_error`` iff any band.
+    family_error
+        The family-wise error rate.
+    """
+
+    residuals: tuple[RunResidual, ...]
+    bands: tuple[MismatchBand, ...]
+    scatter_scale: float
+    effective_bins: float
+    correlation: float
+    degrees_of_freedom: float
+    threshold_z: float
+    global_p_value: float
+    family_error: float = FAMILY_ERROR
+
+    @property
+    def adequate(self) -> bool:
+        """True when nothing is significant: the model explains the recordings."""
+        return not self.bands
+
+    def as_dict(self) -> dict[str, object]:
+        """The map's figures for the diagnosis JSON (``test``)."""
+        return {
+            "family_error": self.family_error,
+            "scatter_scale": self.scatter_scale,
+            "effective_bins": self.effective_bins,
+            "bin_correlation": self.correlation,
+            "degrees_of_freedom": self.degrees_of_freedom,
+            "threshold_z": self.threshold_z,
+            "global_p_value": self.global_p_value,
+        }
+
+
+def mismatch_map(
+    parameters: DrivetrainParameters,
+    selections: Sequence[tuple[str, RunSelection]],
+    draws: int = DRAWS,
+    family_error: float = FAMILY_ERROR,
+) -> MismatchMap:
+    """Locate where a model misses its recordings (see the module notes).
+
+    Parameters
+    ----------
+    parameters
+        The model's parameters (K and T_loss as identified).
+    selections
+        ``(role, selection)`` pairs: the identification's runs (``fit``) and the held-out ones
+        (``validation``), each test with the combustion variation the model repeats.
+    draws
+        Model recordings drawn per run for its scatter (at least 4).
+    family_error
+        Family-wise error rate of the map.
+
+    Returns
+    -------
+    MismatchMap
+    """
+    if draws < 4:
+        raise ValueError(f"draws must be at least 4 for a scatter, got {draws}")
+    runs = [
+        run
+        for role, selection in selections
+        for run in model_scatter(parameters, role, selection, draws)
+    ]
+    standard = [run.deviations / run.scatter_db for run in runs]
+    correlation = neighbour_correlation(standard)
+    scale = scatter_scale([run.residual_db / run.scatter_db for run in runs], standard)
+    n_bins = sum(len(run.model_db) for run in runs)
+    effective = max(1.0, n_bins * (1.0 - correlation) / (1.0 + correlation))
+    dof = (draws - 1) * max(1.0, SMOOTH_BINS * (1.0 - correlation) / (1.0 + correlation))
+    bin_error = 1.0 - (1.0 - family_error) ** (1.0 / effective)
+    threshold = float(stats.t.isf(bin_error / 2, dof))
+    residuals, bands = [], []
+    largest = 0.0
+    for run in runs:
+        estimate, scatter = run.estimate, run.scatter_db * scale
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = run.residual_db / scatter
+        residual = RunResidual(
+            run.label,
+            run.role,
+            "drv",
+            estimate.run.amplitude_nm,
+            estimate.frequency_hz,
+            estimate.drv_db,
+            run.model_db,
+            scatter,
+            z,
+            estimate.coherence,
+        )
+        residuals.append(residual)
+        finite = np.isfinite(z)
+        if finite.any():
+            largest = max(largest, float(np.max(np.abs(z[finite]))))
+        bands.extend(find_bands(residual, threshold, effective, dof))
+    global_p = family_p_value(largest, effective, dof)
+    bands.sort(key=lambda band: (band.p_value, -abs(band.excess_db)))
+    return MismatchMap(
+        tuple(residuals),
+        tuple(bands),
+        scale,
+        effective,
+        correlation,
+        dof,
+        threshold,
+        global_p,
+        family_error,
+    )
+
+
+class ModelScatter(NamedTuple):
+    """One run's model curve and the scatter of the model's own recordings about it.
+
+    Attributes
+    ----------
+    label, role
+        ``recording @ A N*m`` and ``fit`` / ``validation``.
+    estimate
+        The measured FRF.
+    model_db
+        The model's |G_DRV| (its antithetic realizations' mean), dB.
+    scatter_db
+        Standard deviation of one recording's |G_DRV| about it, dB (smoothed over
+        :data:`SMOOTH_BINS`, the model curve's own share added).
+    deviations
+        (draws, bins) the draws' |G_DRV| less their mean, dB.
+    """
+
+    label: str
+    role: str
+    estimate: FrfEstimate
+    model_db: np.ndarray
+    scatter_db: np.ndarray
+    deviations: np.ndarray
+
+    @property
+    def residual_db(self) -> np.ndarray:
+        """Measured minus model, dB."""
+        return self.estimate.drv_db - self.model_db
+
+
+def model_scatter(
+    parameters: DrivetrainParameters, role: str, selection: RunSelection, draws: int
+) -> list[ModelScatter]:
+    """Each run's model curve and scatter (see the module notes), for one selection."""
+    params = parameters.as_array()[None]
+    out = []
+    for test, runs in zip(selection.tests, selection.runs, strict=True):
+        model_test = test.model_test(runs)
+        model = model_drv_db(params, model_test)
+        singles = [
+            model_drv_db(
+                params,
+                dataclasses.replace(
+                    model_test,
+                    realizations=1,
+                    antithetic=False,
+                    recording_noise=True,
+                    seed=DRAW_SEED + k,
+                ),
+            )
+            for k in range(draws)
+        ]
+        for position, i in enumerate(runs):
+            estimate = test.estimates[i]
+            draws_db = np.array([single[position][0] for single in singles])
+            variance = smoothed(np.nanvar(draws_db, axis=0, ddof=1))
+            variance *= 1.0 + 1.0 / model_test.realizations
+            out.append(
+                ModelScatter(
+                    f"{test.name} @ {estimate.run.amplitude_nm:g} N*m",
+                    role,
+                    estimate,
+                    model[position][0],
+                    np.sqrt(variance),
+                    draws_db - np.nanmean(draws_db, axis=0),
+                )
+            )
+    return out
+
+
+def scatter_scale(standardised: Sequence[np.ndarray], deviations: Sequence[np.ndarray]) -> float:
+    """How much rougher over frequency the recordings' residuals are than the model's own
+    recordings, at least 1.
+
+    The model's draws hold the noise the model knows (combustion variation, torque sensor);
+    a vehicle has more (the speed sensor's jitter, disturbances nobody modelled). Such noise makes
+    neighbouring bins differ; a physics the model lacks bends the residual smoothly over a band.
+    The ratio of the median absolute neighbour differences, residual over draws (robust: a
+    mismatch's band moves a median little), scales the scatter up when the recording is noisier.
+
+    Parameters
+    ----------
+    standardised
+        Per run, the residual divided by the model's scatter, (bins,).
+    deviations
+        Per run, the draws' deviations divided by the scatter, (draws, bins).
+    """
+    measured = np.concatenate([np.abs(np.diff(r)) for r in standardised])
+    drawn = np.concatenate([np.abs(np.diff(d, axis=-1)).ravel() for d in deviations])
+    measured, drawn = measured[np.isfinite(measured)], drawn[np.isfinite(drawn)]
+    if len(measured) == 0 or len(drawn) == 0 or np.median(drawn) == 0:
+        return 1.0
+    return max(1.0, float(np.median(measured) / np.median(drawn)))
+
+
+def smoothed(variance: np.ndarray) -> np.ndarray:
+    """A bin's variance averaged with its neighbours' over :data:`SMOOTH_BINS` (edges shorter)."""
+    finite = np.isfinite(variance)
+    kernel = np.ones(SMOOTH_BINS)
+    total = np.convolve(np.where(finite, variance, 0.0), kernel, mode="same")
+    count = np.convolve(finite.astype(float), kernel, mode="same")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan)
+
+
+def neighbour_correlation(deviations: Sequence[np.ndarray]) -> float:
+    """Pooled lag-one correlation over frequency of standardised deviations, within [0, 0.95].
+
+    Parameters
+    ----------
+    deviations
+        Per run, (draws, bins) deviations of the model's recordings from their mean, each
+        divided by its bin's scatter.
+    """
+    products, squares = 0.0, 0.0
+    for raw in deviations:
+        block = np.where(np.isfinite(raw), raw, 0.0)
+        products += float(np.sum(block[:, 1:] * block[:, :-1]))
+        squares += float(np.sum(block**2))
+    if squares == 0.0:
+        return 0.0
+    return float(np.clip(products / squares, 0.0, 0.95))
+
+
+def family_p_value(z: float, effective: float, dof: float) -> float:
+    """Family-wise p-value of a |z| among ``effective`` independent t-distributed bins."""
+    single = 2.0 * float(stats.t.sf(abs(z), dof))
+    return float(-np.expm1(effective * np.log1p(-min(single, 1.0 - 1e-16))))
+
+
+def find_bands(
+    residual: RunResidual, threshold: float, effective: float, dof: float
+) -> list[MismatchBand]:
+    """The significant bands of one run (see the module notes)."""
+    z = residual.z
+    bands = []
+    n = len(z)
+    i = 0
+    while i < n:
+        if not (np.isfinite(z[i]) and abs(z[i]) >= EDGE_Z):
+            i += 1
+            continue
+        sign = np.sign(z[i])
+        j = i
+        while j + 1 < n and np.isfinite(z[j + 1]) and z[j + 1] * sign >= EDGE_Z:
+            j += 1
+        stretch = slice(i, j + 1)
+        peak = i + int(np.argmax(np.abs(z[stretch])))
+        if abs(z[peak]) >= threshold:
+            bands.append(
+                MismatchBand(
+                    residual.frf,
+                    residual.label,
+                    residual.role,
+                    residual.amplitude_nm,
+                    float(residual.frequency_hz[i]),
+                    float(residual.frequency_hz[j]),
+                    float(residual.residual_db[peak]),
+                    family_p_value(float(z[peak]), effective, dof),
+                    float(residual.frequency_hz[peak]),
+                    float(np.median(residual.coherence[stretch])),
+                )
+            )
+        i = j + 1
+    return bands

@@ -1,0 +1,170 @@
+"""The diagnosis's mismatch map (dtid.identification.diagnosis): calibrated on the model's own
+scatter, it declares a right model adequate, locates a wrong one where the physics says it must
+miss, and its hints recover the value the data came from; its statistics against closed forms
+and independent estimates."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from dtid.cli import main as dtid
+from dtid.identification.diagnosis.diagnose import diagnose, diagnose_document
+from dtid.identification.diagnosis.mismatch import (
+    EDGE_Z,
+    RunResidual,
+    family_p_value,
+    find_bands,
+    mismatch_map,
+    neighbour_correlation,
+)
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import identification_runs, validation_runs
+from dtid.simulator.linear import three_mass_modes
+from dtid.simulator.vehicle_data import VehicleData
+from tests.json_schemas import validate
+
+
+@pytest.fixture(scope="module")
+def selections(reference_data):
+    """The reference test's identifying (5, 10 N*m) and validating (2 N*m) runs."""
+    tests = [MeasuredTest.from_data("reference", reference_data, 0.25, VehicleData())]
+    return [("fit", identification_runs(tests)), ("validation", validation_runs(tests))]
+
+
+@pytest.fixture(scope="module")
+def at_truth(selections, reference):
+    return mismatch_map(reference, selections)
+
+
+def test_the_model_at_the_truth_explains_the_recording(at_truth):
+    assert at_truth.adequate, [band.as_dict() for band in at_truth.bands]
+    assert at_truth.global_p_value > at_truth.family_error
+    # the scatter is calibrated: z has about unit spread where the model is right
+    z = np.concatenate([r.z for r in at_truth.residuals])
+    assert 0.7 < np.sqrt(np.nanmean(z**2)) < 1.4
+    assert {r.role for r in at_truth.residuals} == {"fit", "validation"}
+    assert sorted(r.amplitude_nm for r in at_truth.residuals) == [2.0, 5.0, 10.0]
+
+
+def test_a_wrong_dmf_stiffness_is_located_at_the_dmf_mode_and_the_hint_finds_the_truth(
+    selections, reference
+):
+    wrong = reference.replace(c12=1.3 * reference.c12)
+    diagnosis = diagnose(wrong, selections, {"parameters": {}, "nrmse": {}, "objective": 0.0})
+    assert not diagnosis.adequate
+    # the model's DMF is too stiff: every strong band lies where the DMF shapes the response,
+    # from its anti-resonance (4.5-5 Hz on these runs) over its resonance (6.5-7 Hz) to the
+    # flank above, none on the inertia line below 3 Hz
+    assert three_mass_modes(wrong)[0] > three_mass_modes(reference)[0]
+    low = 3.0
+    first = diagnosis.mismatch.bands[0]
+    assert first.p_value < 1e-6
+    strong = [band for band in diagnosis.mismatch.bands if band.p_value < 1e-4]
+    assert all(low < band.peak_hz < 12.5 for band in strong), strong
+    assert {band.amplitude_nm for band in diagnosis.mismatch.bands} >= {5.0, 10.0}
+    # each identifying run on its own asks for the stiffness the data were made with
+    for hint in diagnosis.hints:
+        if hint.name == "c12" and hint.role == "fit":
+            assert hint.effective == pytest.approx(reference.c12, rel=0.08), hint
+            assert hint.nrmse_effective < hint.nrmse_identified
+    assert "c12" in diagnosis.sentence()
+
+
+def test_neighbour_correlation_of_an_ar1_sequence():
+    rng = np.random.default_rng(3)
+    rho, n = 0.5, 4000
+    noise = rng.standard_normal((8, n))
+    series = np.empty_like(noise)
+    series[:, 0] = noise[:, 0]
+    for i in range(1, n):
+        series[:, i] = rho * series[:, i - 1] + np.sqrt(1 - rho**2) * noise[:, i]
+    assert neighbour_correlation([series]) == pytest.approx(rho, abs=0.02)
+    assert neighbour_correlation([rng.standard_normal((8, n))]) == pytest.approx(0.0, abs=0.02)
+
+
+def test_family_p_value_is_sidaks_with_students_t():
+    for z, m, dof in ((3.0, 50.0, 30.0), (4.5, 200.0, 1e6), (1.0, 1.0, 10.0)):
+        single = 2 * stats.t.sf(z, dof)
+        assert family_p_value(z, m, dof) == pytest.approx(1 - (1 - single) ** m, rel=1e-9)
+    # at the threshold the family-wise error is the one asked for
+    m, dof = 60.0, 40.0
+    threshold = stats.t.isf((1 - 0.99 ** (1 / m)) / 2, dof)
+    assert family_p_value(threshold, m, dof) == pytest.approx(0.01, rel=1e-6)
+
+
+def test_bands_gather_same_signed_neighbours_around_a_significant_bin():
+    f = np.arange(10.0)
+    z = np.array([0.0, 2.5, 6.0, 3.0, -2.5, -2.2, 0.0, -5.0, 1.0, 2.1])
+    residual = RunResidual(
+        "r", "fit", "drv", 5.0, f, z * 0.1, np.zeros(10), np.full(10, 0.1), z, np.ones(10)
+    )
+    bands = find_bands(residual, threshold=4.0, effective=10.0, dof=100.0)
+    assert [(b.f_lo_hz, b.f_hi_hz, b.peak_hz) for b in bands] == [(1, 3, 2), (7, 7, 7)]
+    assert bands[0].excess_db == pytest.approx(0.6) and bands[1].excess_db == pytest.approx(-0.5)
+    assert all(abs(z[int(b.f_lo_hz)]) >= EDGE_Z for b in bands)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("diagnose") / "test.blf"
+    command = ["simulate", str(path), "--amplitudes", "5", "10", "2", "--duration", "20"]
+    assert dtid([*command, "--seed", "4"]) == 0
+    return path
+
+
+def identification_document(recording: Path, reference, **changes: float) -> dict:
+    """An identification JSON as `dtid identify` writes it, at the truth (changed)."""
+    from dtid.workflow import measured_tests
+
+    test = measured_tests([recording])[0]
+    values = reference.replace(**changes).as_dict()
+    return {
+        "parameters": {k: v for k, v in values.items() if k != "T_loss"},
+        "T_loss": values["T_loss"],
+        "combustion_variation": {test.name: test.combustion_variation},
+        "nrmse": {"fit": {}, "validation": {}},
+        "objective": 0.0,
+    }
+
+
+def test_diagnose_command_writes_the_documented_json(recording, reference, tmp_path, capsys):
+    document = identification_document(recording, reference, c12=1.3 * reference.c12)
+    identification = tmp_path / "id.json"
+    identification.write_text(json.dumps(document))
+    out = tmp_path / "diagnosis.json"
+    command = ["diagnose", str(recording), "--identification", str(identification)]
+    assert dtid([*command, "--json", str(out), "--plot", str(tmp_path / "map.png")]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("The identified model misses these recordings")
+    result = json.loads(out.read_text())
+    validate(result, "diagnosis")
+    assert result["adequate"] is False and result["mismatch"]
+    assert result["verdict"]["unexplained"] == result["mismatch"]
+    assert result["candidates"] == [] and result["verdict"]["mechanisms"] == []
+    assert (tmp_path / "map.png").stat().st_size > 10_000
+
+
+def test_diagnose_refuses_a_file_that_is_no_identification(recording, tmp_path, capsys):
+    wrong = tmp_path / "wrong.json"
+    wrong.write_text('{"not": "an identification"}')
+    assert dtid(["diagnose", str(recording), "--identification", str(wrong)]) == 2
+    assert "not an identification JSON" in capsys.readouterr().err
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"parameters": {"J1": 0.1}, "T_loss": 10.0}))
+    assert dtid(["diagnose", str(recording), "--identification", str(other)]) == 2
+    assert "lacks" in capsys.readouterr().err
+
+
+def test_a_document_for_other_recordings_is_refused(recording, reference):
+    from dtid.errors import ConfigError
+    from dtid.workflow import measured_tests
+
+    document = identification_document(recording, reference)
+    document["combustion_variation"] = {"elsewhere.blf": 0.02}
+    with pytest.raises(ConfigError, match="other recordings"):
+        diagnose_document(measured_tests([recording]), document)
