@@ -134,6 +134,21 @@ class PipelineConfig:
 
 
 @dataclass(frozen=True)
+class WorkerConfig:
+    """What ``dtid worker`` does besides the identification.
+
+    Attributes
+    ----------
+    diagnose
+        After the validation chirp, diagnose the identified model (``dtid diagnose``: does it
+        explain the recordings, and where not), publish the diagnosis on ``[pipeline] results``
+        (topic ``diagnosis``) and write ``diagnosis.json`` beside the session's log.
+    """
+
+    diagnose: bool = False
+
+
+@dataclass(frozen=True)
 class AcquisitionConfig:
     """The whole configuration file."""
 
@@ -143,6 +158,7 @@ class AcquisitionConfig:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+    worker: WorkerConfig = field(default_factory=WorkerConfig)
 
     def __post_init__(self) -> None:
         _check(self)
@@ -159,6 +175,7 @@ _SECTIONS = {
     "safety": SafetyConfig,
     "output": OutputConfig,
     "pipeline": PipelineConfig,
+    "worker": WorkerConfig,
 }
 
 
@@ -174,6 +191,10 @@ def _convert(where: str, default: Any, value: Any, base: Path) -> Any:
         ):
             raise ConfigError(f"{where}: expected a list of numbers, got {value!r}")
         return tuple(float(v) for v in value)
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true or false, got {value!r}")
+        return value
     if isinstance(default, float):
         if not isinstance(value, int | float) or isinstance(value, bool):
             raise ConfigError(f"{where}: expected a number, got {value!r}")

@@ -369,7 +369,7 @@ class Daemon:
         self._take_sent()
         path = self._path
         if path.pending:
-            path.publish_block()
+            path.publish_block(final=True)
         path.publish_health()
         path.publish("end", {"status": self._status, "reason": self._reason, "t_s": self._t_end})
         self._recorder.close()

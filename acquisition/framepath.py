@@ -132,8 +132,15 @@ class FramePath:
         self._pending += 1
         self._buckets[frame.arbitration_id].append(frame)
 
-    def publish_block(self) -> None:
-        """Decode the pending frames, check them and publish their samples event."""
+    def publish_block(self, final: bool = False) -> None:
+        """Decode the pending frames, check them and publish their samples event.
+
+        A block that decodes to no samples (only frames the signal map does not use, or bad
+        ones) publishes nothing: its frames are counted in the next samples event. On a bus
+        busy with other traffic an event per block would fill the replay (every event of a
+        session is kept) with empty ones: 500 a second at full load. ``final`` publishes
+        whatever is pending.
+        """
         decoded: dict[str, RoleSeries] = {}
         for arbitration_id, bucket in self._buckets.items():
             if bucket:
@@ -146,15 +153,13 @@ class FramePath:
             self.speed_seen = True
             if self.safety is not None:
                 self.alarm = self.alarm or self.safety.on_speed(speed.timestamps, speed.values)
-        self.publish(
-            "samples",
-            {
-                "roles": samples_roles(decoded),
-                "frames": self._pending,
-                "received_wall_s": self._first_wall,
-            },
-        )
-        self._pending = 0
+        roles = samples_roles(decoded)
+        if roles or final or self._server.count == 0:
+            self.publish(
+                "samples",
+                {"roles": roles, "frames": self._pending, "received_wall_s": self._first_wall},
+            )
+            self._pending = 0
         counts = self.health.counts.anomalies()
         now = time.monotonic()
         if counts != self._last_health and now - self._last_health_wall >= HEALTH_PERIOD_S:

@@ -509,7 +509,7 @@ def test_replay_alone_gives_the_live_result(
     daemon = FakeDaemon(pipeline, session.events, page=40)
     daemon.go.set()
     assert daemon.done.wait(10)
-    options = WorkerOptions(settings=BUDGET, profile_points=0)  # files beside the log
+    options = WorkerOptions(settings=BUDGET, profile_points=0, diagnose=True)  # beside the log
     try:
         status, messages, _ = _serve(pipeline, options)
     finally:
@@ -523,6 +523,18 @@ def test_replay_alone_gives_the_live_result(
     folder = session.log_path.parent
     assert json.loads((folder / "identification.json").read_text()) == result
     assert (folder / "identification.png").stat().st_size > 10_000
+    # [worker] diagnose: the diagnosis `dtid diagnose --identification` gives on the log
+    (diagnosis,) = [d for t, d in messages if t == "diagnosis"]
+    assert diagnosis.pop("session") == "s1"
+    written = json.loads((folder / "diagnosis.json").read_text())
+    assert written == diagnosis
+    identification = folder / "identification.json"
+    out = folder / "offline-diagnosis.json"
+    command = ["diagnose", str(session.log_path), "--identification", str(identification)]
+    assert main([*command, "--json", str(out)]) == 0
+    offline_diagnosis = json.loads(out.read_text())
+    for key in ("adequate", "mismatch", "test", "hints"):
+        assert written[key] == offline_diagnosis[key], key
 
 
 def test_a_new_session_resets_the_worker(

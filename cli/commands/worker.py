@@ -86,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
         json_path=args.json,
         plot_path=args.plot,
         plot=not args.no_plot,
+        diagnose=config.worker.diagnose,
     )
     leave_a_core_to_the_bus()
     worker = Worker(config.pipeline, options)

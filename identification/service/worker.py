@@ -22,6 +22,9 @@ It binds its own PUB (``[pipeline] results``) and publishes, as two frames ``[to
 ``result``
     The JSON document of ``dtid identify --json``, once the validation chirp is complete (at once
     without one); also written to a file and plotted as Fig. 6.
+``diagnosis``
+    With ``[worker] diagnose = true``, after a validated result: ``session`` and the JSON
+    document of ``dtid diagnose --json``; also written to ``diagnosis.json`` beside the log.
 
 The identification starts when the identification chirps are complete (and
 :data:`dtid.identification.pipeline.HOLD_OUT_S` of data past them arrived), in a thread, while the
@@ -137,6 +140,8 @@ class WorkerOptions:
         Draw the plot at all.
     resolution_hz
         Welch resolution of the FRFs.
+    diagnose
+        After the validation, diagnose the identified model (``[worker] diagnose``).
     """
 
     settings: SearchSettings = field(default_factory=SearchSettings)
@@ -147,6 +152,7 @@ class WorkerOptions:
     plot_path: Path | None = None
     plot: bool = True
     resolution_hz: float = DEFAULT_RESOLUTION_HZ
+    diagnose: bool = False
 
 
 @dataclass
@@ -533,7 +539,26 @@ class Worker:
             self._progress(session, "error", message=str(error))
             return
         stage = "validated" if document["nrmse"]["validation"] else "done"
+        if stage == "validated" and self.options.diagnose:
+            written += self._diagnose(session, report, folder)
         self._progress(session, stage, files=written)
+
+    def _diagnose(
+        self, session: _Session, report: IdentificationReport, folder: Path
+    ) -> list[str]:
+        """Diagnose the validated identification, publish and write it; the files written."""
+        from dtid.identification.diagnosis.diagnose import diagnose_report
+        from dtid.jsonfile import write_json
+
+        document = diagnose_report(report).as_dict()
+        self._publish("diagnosis", {"session": session.id, **document})
+        path = folder / "diagnosis.json"
+        try:
+            write_json(path, document)
+        except DtidError as error:
+            self._progress(session, "error", message=str(error))
+            return []
+        return [str(path)]
 
     def _fail(self, session: _Session, message: str) -> None:
         logger.error("session %s: %s", session.id, message)
