@@ -543,9 +543,7 @@ class Worker:
             written += self._diagnose(session, report, folder)
         self._progress(session, stage, files=written)
 
-    def _diagnose(
-        self, session: _Session, report: IdentificationReport, folder: Path
-    ) -> list[str]:
+    def _diagnose(self, session: _Session, report: IdentificationReport, folder: Path) -> list[str]:
         """Diagnose the validated identification, publish and write it; the files written."""
         from dtid.identification.diagnosis.diagnose import diagnose_report
         from dtid.jsonfile import write_json
