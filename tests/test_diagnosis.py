@@ -13,7 +13,8 @@ import pytest
 from scipy import stats
 
 from dtid.cli import main as dtid
-from dtid.identification.diagnosis.diagnose import diagnose, diagnose_document
+from dtid.identification.diagnosis.diagnose import amplitude_trend, diagnose, diagnose_document
+from dtid.identification.diagnosis.hints import EffectiveValue
 from dtid.identification.diagnosis.mismatch import (
     EDGE_Z,
     RunResidual,
@@ -73,6 +74,24 @@ def test_a_wrong_dmf_stiffness_is_located_at_the_dmf_mode_and_the_hint_finds_the
             assert hint.effective == pytest.approx(reference.c12, rel=0.08), hint
             assert hint.nrmse_effective < hint.nrmse_identified
     assert "c12" in diagnosis.sentence()
+    assert "the identifying runs agree on one value: the model's is off" in diagnosis.sentence()
+
+
+def effective(amplitude: float, value: float, role: str = "fit", edge: bool = False):
+    return EffectiveValue(
+        "c12", f"r @ {amplitude:g}", role, amplitude, 300.0, value, 0.1, 0.05, edge
+    )
+
+
+def test_amplitude_trend_reads_the_runs_effective_values():
+    assert amplitude_trend([effective(5, 330), effective(10, 360)]) == "rising with the amplitude"
+    assert amplitude_trend([effective(10, 300), effective(5, 360)]) == "falling with the amplitude"
+    agree = amplitude_trend(
+        [effective(5, 352), effective(10, 345), effective(2, 250, "validation")]
+    )
+    assert agree == "the identifying runs agree on one value: the model's is off"
+    assert amplitude_trend([effective(5, 330)]) == ""  # one identifying run says nothing
+    assert amplitude_trend([effective(5, 330), effective(10, 480, edge=True)]) == ""
 
 
 def test_neighbour_correlation_of_an_ar1_sequence():

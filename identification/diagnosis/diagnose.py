@@ -18,6 +18,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from dtid.errors import ConfigError
 from dtid.identification.diagnosis.hints import EffectiveValue, effective_values
 from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
@@ -108,7 +110,9 @@ class Diagnosis:
             f"{'' if h.role == 'fit' else ' (validation)'}"
             for h in values
         )
-        return f"the runs ask for {name} = {per_run}, against {values[0].identified:.4g} identified"
+        text = f"the runs ask for {name} = {per_run}, against {values[0].identified:.4g} identified"
+        trend = amplitude_trend(values)
+        return f"{text} ({trend})" if trend else text
 
     def as_dict(self) -> dict[str, object]:
         """The JSON document of ``dtid diagnose`` (docs/schemas/diagnosis.schema.json)."""
@@ -132,6 +136,34 @@ class Diagnosis:
             "library": list(MECHANISMS),
             "seconds": self.seconds,
         }
+
+
+TREND_SPREAD = 0.05
+"""Relative spread of the identifying runs' effective values above which they are read as
+depending on the amplitude."""
+
+
+def amplitude_trend(values: Sequence[EffectiveValue]) -> str:
+    """How one parameter's effective value changes over the identifying runs' amplitudes.
+
+    Returns ``''`` for fewer than two identifying runs or a value at the grid's edge; else
+    whether the runs agree on one value other than the model's (the model's value is off, and
+    one value fits every amplitude) or the value rises or falls with the amplitude (an
+    amplitude dependence the model lacks, as a progressive spring or a free play would give).
+    """
+    runs = sorted((v for v in values if v.role == "fit"), key=lambda v: v.amplitude_nm)
+    if len(runs) < 2 or any(v.at_edge for v in runs):
+        return ""
+    effective = np.array([v.effective for v in runs])
+    spread = float(np.ptp(effective) / runs[0].identified)
+    if spread <= TREND_SPREAD:
+        return "the identifying runs agree on one value: the model's is off"
+    steps = np.diff(effective)
+    if np.all(steps > 0):
+        return "rising with the amplitude"
+    if np.all(steps < 0):
+        return "falling with the amplitude"
+    return "differing between the amplitudes"
 
 
 def diagnose(
