@@ -214,9 +214,10 @@ sub = context.socket(zmq.SUB)
 sub.setsockopt(zmq.SUBSCRIBE, b"samples")
 sub.setsockopt(zmq.SUBSCRIBE, b"end")
 sub.connect(sys.argv[1])
+quiet_ms = int(sys.argv[3]) if len(sys.argv) > 3 else 20000
 print("ready", flush=True)
 latencies = []
-while sub.poll(20000):
+while sub.poll(quiet_ms):
     topic, body = sub.recv_multipart()
     now = time.time()
     if topic == b"end":

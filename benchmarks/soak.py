@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.bench_daemon import NAMESPACE_SETUP, UDP_GROUP, UNSHARE
+from benchmarks.bench_daemon import NAMESPACE_SETUP, SUBSCRIBER, UDP_GROUP, UNSHARE
 from dtid.acquisition import netns
 
 REPO = Path(__file__).resolve().parents[1]
@@ -76,26 +76,6 @@ while True:
         sequence += 1
     sys.stdout.flush()
     time.sleep(max(0.0, start + (slot_index + 1) * slot - time.monotonic()))
-"""
-
-SUBSCRIBER = """
-import json, sys, time, zmq
-context = zmq.Context()
-sub = context.socket(zmq.SUB)
-sub.setsockopt(zmq.SUBSCRIBE, b"samples")
-sub.setsockopt(zmq.SUBSCRIBE, b"end")
-sub.connect(sys.argv[1])
-print("ready", flush=True)
-latencies = []
-while sub.poll(120000):
-    topic, body = sub.recv_multipart()
-    now = time.time()
-    if topic == b"end":
-        break
-    event = json.loads(body)
-    for role in ("speed", "torque_request", "mean_torque"):
-        latencies.extend(now - t for t in event["roles"].get(role, {}).get("t", []))
-json.dump(latencies, open(sys.argv[2], "w"))
 """
 
 
@@ -202,6 +182,7 @@ def soak(workdir: Path, chirp_s: float, rate: float) -> dict[str, Any]:
                 SUBSCRIBER,
                 f"ipc://{workdir / 'ipc' / 'blocks'}",
                 str(latencies_file),
+                "120000",  # ms without a block before it gives up
             ],
             stdout=subprocess.PIPE,
             text=True,

@@ -21,7 +21,13 @@ from dtid.cli.commands.common import (
     positive_float,
     vehicle_data,
 )
-from dtid.cli.commands.identify import _progress, add_search_options, search_settings
+from dtid.cli.commands.identify import (
+    _progress,
+    add_bounds_options,
+    add_search_options,
+    parse_bounds,
+    search_settings,
+)
 from dtid.errors import ConfigError
 from dtid.identification.diagnosis.diagnose import Diagnosis, diagnose_document, diagnose_report
 from dtid.jsonfile import write_json
@@ -50,11 +56,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="NM",
         help="amplitudes that identify (default: the two largest); the others validate",
     )
-    parser.add_argument(
-        "--prior",
-        type=Path,
-        help="parameter set (TOML) the identification's bounds centre on (default: reference)",
-    )
+    add_bounds_options(parser)
     add_vehicle_option(parser)
     add_search_options(parser)
     parser.set_defaults(profile_points=0)
@@ -94,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
             signals=args.signals,
             vehicle=vehicle,
             prior=load_parameters(args.prior) if args.prior else reference_parameters(),
+            bounds=parse_bounds(args.bounds),
+            span=None if args.span is None else args.span / 100,
             identify_amplitudes=args.identify,
             settings=search_settings(args),
             profile_points=args.profile_points,
