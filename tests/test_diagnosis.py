@@ -5,6 +5,7 @@ and independent estimates."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -92,6 +93,15 @@ def test_amplitude_trend_reads_the_runs_effective_values():
     assert agree == "the identifying runs agree on one value: the model's is off"
     assert amplitude_trend([effective(5, 330)]) == ""  # one identifying run says nothing
     assert amplitude_trend([effective(5, 330), effective(10, 480, edge=True)]) == ""
+
+
+def test_without_a_torque_request_the_diagnosis_says_why_it_cannot(reference_data, reference):
+    from dtid.errors import AnalysisError
+
+    data = dataclasses.replace(reference_data, torque_request=None)
+    tests = [MeasuredTest.from_data("no request", data, 0.25, VehicleData())]
+    with pytest.raises(AnalysisError, match="torque_request role"):
+        mismatch_map(reference, [("fit", identification_runs(tests))])
 
 
 def test_neighbour_correlation_of_an_ar1_sequence():

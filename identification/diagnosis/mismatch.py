@@ -34,6 +34,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy import stats
 
+from dtid.errors import AnalysisError
 from dtid.identification.frf.closed_loop import FrfEstimate
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.pipeline import RunSelection
@@ -47,6 +48,8 @@ DRAWS = 16
 """Recordings of the model drawn to measure each bin's scatter."""
 SMOOTH_BINS = 5
 """Bins over which each bin's scatter variance is averaged (steadies it, adds freedom)."""
+NO_SCATTER_DB = 1e-6
+"""A model whose draws scatter less than this (dB) draws no noise (rounding aside)."""
 DRAW_SEED = 7_000
 """First seed of the draws (apart from the identification's model seeds)."""
 
@@ -332,6 +335,13 @@ def model_scatter(
         for position, i in enumerate(runs):
             estimate = test.estimates[i]
             draws_db = np.array([single[position][0] for single in singles])
+            if not np.nanmax(np.nanstd(draws_db, axis=0), initial=0.0) > NO_SCATTER_DB:
+                raise AnalysisError(
+                    f"{test.name}: the model of this recording draws no noise (without a "
+                    "torque_request role the measured torque drives it, variation and all), so "
+                    "the diagnosis cannot tell a mismatch from the recording's scatter; map the "
+                    "ECU's torque request in the signal map (docs/vehicle.md) and record it"
+                )
             variance = smoothed(np.nanvar(draws_db, axis=0, ddof=1))
             variance *= 1.0 + 1.0 / model_test.realizations
             out.append(
