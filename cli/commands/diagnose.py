@@ -18,12 +18,12 @@ from pathlib import Path
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
-    positive_float,
     vehicle_data,
 )
 from dtid.cli.commands.identify import (
     _progress,
     add_bounds_options,
+    add_identify_option,
     add_search_options,
     parse_bounds,
     search_settings,
@@ -49,13 +49,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="ID.json",
         help="the JSON `dtid identify --json` wrote for these recordings (default: identify)",
     )
-    parser.add_argument(
-        "--identify",
-        type=positive_float,
-        nargs="+",
-        metavar="NM",
-        help="amplitudes that identify (default: the two largest); the others validate",
-    )
+    add_identify_option(parser)
     add_bounds_options(parser)
     add_vehicle_option(parser)
     add_search_options(parser)

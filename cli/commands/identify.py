@@ -45,13 +45,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="NAME=VALUE",
         help=f"hold parameters at values (SI units): {', '.join(THETA_NAMES + OPERATING_POINT)}",
     )
-    parser.add_argument(
-        "--identify",
-        type=positive_float,
-        nargs="+",
-        metavar="NM",
-        help="amplitudes that identify (default: the two largest); the others validate",
-    )
+    add_identify_option(parser)
     add_bounds_options(parser)
     add_vehicle_option(parser)
     add_search_options(parser)
@@ -59,6 +53,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--plot", type=Path, help="overlay measured and identified FRFs (Fig. 6)")
     add_interface_options(parser)
     parser.set_defaults(run=run)
+
+
+def add_identify_option(parser: argparse.ArgumentParser) -> None:
+    """Add ``--identify``: the amplitudes that identify (``dtid identify``, ``dtid diagnose``)."""
+    parser.add_argument(
+        "--identify",
+        type=positive_float,
+        nargs="+",
+        metavar="NM",
+        help="amplitudes that identify (default: the two largest); the others validate",
+    )
 
 
 def add_bounds_options(parser: argparse.ArgumentParser) -> None:
