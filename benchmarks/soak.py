@@ -74,7 +74,6 @@ while True:
         payload = struct.pack("<II", sequence, 0)
         bus.send(can.Message(arbitration_id={frame_id}, is_extended_id=False, data=payload))
         sequence += 1
-    sys.stdout.flush()
     time.sleep(max(0.0, start + (slot_index + 1) * slot - time.monotonic()))
 """
 
