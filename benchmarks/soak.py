@@ -58,7 +58,7 @@ FILLER_ID = 0x321
 """ID of the filler frames: not in the product DBC, so recorded and never decoded."""
 
 FILLER = """
-import struct, sys, time
+import struct, time
 import can
 from dtid.acquisition.bus import open_bus
 from dtid.acquisition.config import BusConfig
