@@ -54,6 +54,25 @@ def dmf_smooth_torque(
 
 
 @numba.njit(cache=True, inline="always")
+def second_stage_torque(deflection: float, stiffness: float, knee: float) -> float:
+    """Torque of a spring's second stage: ``stiffness`` times the deflection beyond ``knee``,
+    N*m (the ``progressive_spring`` and ``clutch_two_stage`` mechanisms).
+
+    Parameters
+    ----------
+    deflection
+        The first stage's spring deflection (beyond any free play), rad.
+    stiffness
+        Stiffness the second stage adds, N*m/rad (0: none).
+    knee
+        Deflection where it engages, rad.
+    """
+    if stiffness <= 0.0:
+        return 0.0
+    return stiffness * dead_zone(deflection, knee)
+
+
+@numba.njit(cache=True, inline="always")
 def friction_impulse(
     rate12: float, inv_j1: float, inv_j2: float, friction: float, h: float
 ) -> float:
@@ -87,7 +106,14 @@ def friction_impulse(
 
 @numba.njit(cache=True, inline="always")
 def backlash_torque(
-    delta23: float, rate23: float, backlash: float, c23: float, d23: float, half_play23: float
+    delta23: float,
+    rate23: float,
+    backlash: float,
+    c23: float,
+    d23: float,
+    half_play23: float,
+    c23_2: float = 0.0,
+    knee23: float = 0.0,
 ) -> float:
     """Torque from J2 to J3 through the spring-damper in series with gear play, N*m.
 
@@ -103,8 +129,12 @@ def backlash_torque(
         Stiffness, N*m/rad, and damping, N*m*s/rad, of the coupling.
     half_play23
         Half the gear-play width, rad.
+    c23_2, knee23
+        A second stage (``clutch_two_stage``): stiffness added beyond a twist of ``knee23``,
+        N*m/rad and rad; none by default.
     """
-    torque = c23 * (delta23 - backlash) + d23 * rate23
+    twist = delta23 - backlash
+    torque = c23 * twist + second_stage_torque(twist, c23_2, knee23) + d23 * rate23
     if half_play23 <= 0.0:
         return torque
     if backlash >= half_play23:

@@ -29,6 +29,12 @@ stroke at that crank angle took, and keeps the simulated speed on the recorded o
 sample, with a slow controller of its own (:mod:`dtid.identification.model.idle_loop`); the test
 torque requests are then already in the drive and the request table is empty.
 
+Beyond the paper's plant, the parameter vector carries the mechanisms of
+:mod:`dtid.simulator.mechanisms` (a second spring stage, an asymmetric free play, friction
+growing with deflection, quadratic damping, a two-stage clutch, gearbox drag, a belt-driven
+accessory, a torque lag, a torque-sensor gain, a cylinder imbalance); at their neutral values
+each term vanishes and the kernel is the paper's.
+
 A run may be advanced in segments: :func:`advance` continues a state vector made by
 :func:`initial_state` (the virtual vehicle steps the plant in real time this way, with the request
 it holds); advancing once to the end is :func:`run_plant`.
@@ -39,6 +45,7 @@ set-point (a stall or run-away of a non-physical parameter set), 2 an output buf
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numba
@@ -58,6 +65,24 @@ from dtid.simulator.couplings import (
     backlash_update,
     dmf_smooth_torque,
     friction_impulse,
+    second_stage_torque,
+)
+from dtid.simulator.mechanisms import (
+    P_ASYM12,
+    P_C12_2,
+    P_C14,
+    P_C23_2,
+    P_D3,
+    P_D12_2,
+    P_D14,
+    P_G_T,
+    P_J4,
+    P_KNEE12,
+    P_KNEE23,
+    P_PHI12_F,
+    P_SHARE,
+    P_TAU_M,
+    P_TC12_2,
 )
 
 STATUS_OK = 0
@@ -98,7 +123,8 @@ S_DELTA12, S_DELTA23, S_BACKLASH, S_INTEGRAL, S_REQUEST, S_WINDOW_SUM, S_WINDOW_
     12,
 )
 S_DERIVATIVE, S_LAST_MEASURED, S_RING_POS, S_ERROR = 13, 14, 15, 16
-N_SCALARS = 17
+S_LAG, S_W4, S_DELTA14 = 17, 18, 19  # the torque_lag and accessory_mode mechanisms' states
+N_SCALARS = 20
 O_HELD = N_SCALARS
 O_WINDOW = O_HELD + N_CYL
 O_COMMANDS = O_WINDOW + N_WIN
@@ -152,7 +178,8 @@ class Job(NamedTuple):
     Attributes
     ----------
     params
-        Drivetrain parameters in the order of :data:`dtid.simulator.parameters.NAMES`, SI units.
+        Drivetrain parameters in the order of :data:`dtid.simulator.parameters.NAMES`, then the
+        mechanisms' (:data:`dtid.simulator.mechanisms.EXTRA_NAMES`), SI units.
     request_scale
         Factor on the request values (a unit chirp scaled to an amplitude).
     n_sub
@@ -211,6 +238,8 @@ def initial_state(params: np.ndarray, loop: Loop, test_nm: float) -> np.ndarray:
     state[S_W1] = w_set
     state[S_W2] = w_set
     state[S_W3] = w_set
+    state[S_W4] = w_set
+    state[S_LAG] = t_loss
     integral = min(max(t_loss / gain - mean_drive, u_min), u_max)
     state[S_INTEGRAL] = integral
     state[S_REQUEST] = integral + test_nm
@@ -256,6 +285,13 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
     tc12, half12, half23 = params[7], 0.5 * params[8], 0.5 * params[9]
     t_loss, gain = params[10], params[11]
     inv1, inv2, inv3 = 1.0 / j1, 1.0 / j2, 1.0 / j3
+    c12_2, knee12, d12_2 = params[P_C12_2], params[P_KNEE12], params[P_D12_2]
+    shift12 = params[P_ASYM12] * half12  # the free play's centre, asymmetric_play
+    tc12_2, phi12_f = params[P_TC12_2], params[P_PHI12_F]
+    c23_2, knee23, d3 = params[P_C23_2], params[P_KNEE23], params[P_D3]
+    j4, c14, d14 = params[P_J4], params[P_C14], params[P_D14]
+    inv4 = 1.0 / j4 if j4 > 0.0 else 0.0
+    tau_m, sensor_gain, share = params[P_TAU_M], params[P_G_T], params[P_SHARE]
     kp, ki, kd, d_tau = controller[C_KP], controller[C_KI], controller[C_KD], controller[C_D_TAU]
     u_min, u_max, closed = controller[C_U_MIN], controller[C_U_MAX], controller[C_CLOSED] > 0.5
     delay, latch, e_tau = int(controller[C_DELAY]), int(controller[C_LATCH]), controller[C_E_TAU]
@@ -268,6 +304,7 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
     t_control = state[S_T_CONTROL]
     step = int(state[S_STEP])
     w1, w2, w3 = state[S_W1], state[S_W2], state[S_W3]
+    w4, delta14, lagged = state[S_W4], state[S_DELTA14], state[S_LAG]
     delta12, delta23, backlash = state[S_DELTA12], state[S_DELTA23], state[S_BACKLASH]
     integral, request = state[S_INTEGRAL], state[S_REQUEST]
     derivative, last_measured = state[S_DERIVATIVE], state[S_LAST_MEASURED]
@@ -337,13 +374,22 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
             if stroke > 0:
                 finished = (stroke - 1) % N_CYL
                 out_torque[n_torque, 0] = t
-                out_torque[n_torque, 1] = held[finished] + sigma_torque * torque_noise[n_torque]
+                out_torque[n_torque, 1] = (
+                    sensor_gain * held[finished] + sigma_torque * torque_noise[n_torque]
+                )
                 out_torque[n_torque, 2] = finished
                 n_torque += 1
             latched = requests[(ring_pos - latch) % N_RING]
             if n_drive > 0:
                 latched += drive[min(stroke, n_drive - 1)]
-            held[stroke % N_CYL] = gain * latched * (1.0 + sigma_cv * cv_noise[n_started])
+            target = gain * latched
+            if tau_m > 0.0:  # torque_lag: one stroke of pi towards the target
+                stroke_s = STEPS_PER_STROKE * STEP_RAD / w1
+                lagged += (target - lagged) * (1.0 - math.exp(-stroke_s / tau_m))
+                target = lagged
+            if share != 0.0:  # cylinder_imbalance: the first cylinder's excess
+                target *= 1.0 + share if stroke % N_CYL == 0 else 1.0 - share / (N_CYL - 1)
+            held[stroke % N_CYL] = target * (1.0 + sigma_cv * cv_noise[n_started])
             n_started += 1
 
         if w1 < w_min or w1 > w_max:
@@ -359,15 +405,30 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
         for _ in range(n_sub):
             rate12 = w1 - w2
             rate23 = w2 - w3
-            torque12 = dmf_smooth_torque(delta12, rate12, c12, d12, half12)
-            torque23 = backlash_torque(delta23, rate23, backlash, c23, d23, half23)
-            w1 += h * inv1 * (net - torque12)
+            centred12 = delta12 - shift12
+            torque12 = dmf_smooth_torque(centred12, rate12, c12, d12, half12)
+            if c12_2 > 0.0:
+                spring12 = centred12 - max(min(centred12, half12), -half12)
+                torque12 += second_stage_torque(spring12, c12_2, knee12)
+            if d12_2 > 0.0:
+                torque12 += d12_2 * rate12 * abs(rate12)
+            torque23 = backlash_torque(delta23, rate23, backlash, c23, d23, half23, c23_2, knee23)
+            torque14 = 0.0
+            if j4 > 0.0:  # accessory_mode: J4 on J1 through the belt
+                torque14 = c14 * delta14 + d14 * (w1 - w4)
+                w4 += h * inv4 * torque14
+            w1 += h * inv1 * (net - torque12 - torque14)
             w2 += h * inv2 * (torque12 - torque23)
-            w3 += h * inv3 * torque23
-            impulse = friction_impulse(w1 - w2, inv1, inv2, tc12, h)
+            w3 += h * inv3 * (torque23 - d3 * w3)
+            friction = tc12
+            if tc12_2 > 0.0 and abs(centred12) > phi12_f:  # friction_hysteresis
+                friction += tc12_2
+            impulse = friction_impulse(w1 - w2, inv1, inv2, friction, h)
             w1 -= impulse * inv1
             w2 += impulse * inv2
             delta12 += h * (w1 - w2)
+            if j4 > 0.0:
+                delta14 += h * (w1 - w4)
             delta23_old = delta23
             delta23 += h * (w2 - w3)
             backlash = backlash_update(delta23, delta23_old, backlash, c23, d23, half23, h)
@@ -379,6 +440,7 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
         step += 1
     state[S_T], state[S_T_CONTROL], state[S_STEP] = t, t_control, step
     state[S_W1], state[S_W2], state[S_W3] = w1, w2, w3
+    state[S_W4], state[S_DELTA14], state[S_LAG] = w4, delta14, lagged
     state[S_DELTA12], state[S_DELTA23], state[S_BACKLASH] = delta12, delta23, backlash
     state[S_INTEGRAL], state[S_REQUEST] = integral, request
     state[S_DERIVATIVE], state[S_LAST_MEASURED] = derivative, last_measured

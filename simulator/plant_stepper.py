@@ -19,6 +19,7 @@ from dtid.simulator.kernel import (
     advance,
     initial_state,
 )
+from dtid.simulator.mechanisms import kernel_parameters
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, output_capacity, substeps
 
@@ -44,7 +45,7 @@ class PlantStepper:
     ) -> None:
         self.options = options or SimulationOptions()
         self.parameters = parameters
-        self._params = parameters.as_array()
+        self._params = kernel_parameters(parameters.as_array(), self.options.effects)
         self._loop = self.options.loop(np.zeros(1), np.zeros(1))
         self._n_sub = substeps(self._params, self.options.controller)
         self._rng = np.random.default_rng(seed)

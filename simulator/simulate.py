@@ -33,10 +33,24 @@ from dtid.simulator.kernel import (
     run_plant,
     run_plant_batch,
 )
+from dtid.simulator.mechanisms import (
+    KERNEL_WIDTH,
+    P_C12_2,
+    P_C14,
+    P_C23_2,
+    P_D12_2,
+    P_D14,
+    P_J4,
+    Effects,
+    kernel_parameters,
+)
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
 STABILITY_LIMIT = 0.5
 """Largest omega*h (and damping rate * h) a substep may take; symplectic Euler is stable below 2."""
+QUADRATIC_RATE_RAD_S = 5.0
+"""Relative DMF speed at which quadratic damping's slope is bounded for the step size, rad/s
+(a 10 Hz oscillation of 0.08 rad)."""
 
 
 @dataclass(frozen=True)
@@ -67,6 +81,11 @@ class SimulationOptions:
         How the speed sensor averages its half revolution: ``"speeds"``, the mean of the 30
         step speeds (eq. 9, the product's ECU), or ``"times"``, the window's angle over its
         time, as a tooth timer that adds up tooth times does.
+    effects
+        Mechanisms beyond the paper's model present in the vehicle
+        (:mod:`dtid.simulator.mechanisms`); none by default. Parameter rows given with the
+        mechanism columns already (:data:`dtid.simulator.mechanisms.KERNEL_WIDTH`) override
+        them.
     """
 
     pulsation: bool = True
@@ -76,6 +95,7 @@ class SimulationOptions:
     engine: EngineGeometry = field(default_factory=EngineGeometry)
     controller: IdleController = field(default_factory=IdleController)
     speed_average: str = "speeds"
+    effects: Effects = field(default_factory=Effects)
 
     def __post_init__(self) -> None:
         for name in ("combustion_variation", "speed_noise_rpm", "torque_noise_nm"):
@@ -249,8 +269,18 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
         Gives the set-point, hence the step time.
     """
     j1, j2, j3, c12, c23, d12, d23 = params[:7]
-    stiff = max(2 * c12 / j1, 2 * (c12 + c23) / j2, 2 * c23 / j3)
-    damp = max(2 * d12 / j1, 2 * (d12 + d23) / j2, 2 * d23 / j3)
+    j4 = c14 = d14 = 0.0
+    if len(params) == KERNEL_WIDTH:  # the mechanisms' stiffer stages, dampings and mode
+        c12 += params[P_C12_2]
+        c23 += params[P_C23_2]
+        d12 += 2 * params[P_D12_2] * QUADRATIC_RATE_RAD_S
+        j4 = params[P_J4]
+        if j4 > 0:
+            c14, d14 = params[P_C14], params[P_D14]
+    stiff = max(2 * (c12 + c14) / j1, 2 * (c12 + c23) / j2, 2 * c23 / j3)
+    damp = max(2 * (d12 + d14) / j1, 2 * (d12 + d23) / j2, 2 * d23 / j3)
+    if j4 > 0:
+        stiff, damp = max(stiff, 2 * c14 / j4), max(damp, 2 * d14 / j4)
     rate = max(math.sqrt(stiff), damp)
     longest_step = STEP_RAD / (MIN_SPEED_RATIO * controller.setpoint_rpm / RPM_PER_RAD_S)
     return max(1, math.ceil(rate * longest_step / STABILITY_LIMIT))
@@ -293,7 +323,7 @@ def simulate(
     """
     plan = plan or TestPlan()
     options = options or SimulationOptions()
-    params = parameters.as_array()
+    params = kernel_parameters(parameters.as_array(), options.effects)
     n_speed_max, n_stroke_max = output_capacity(plan.end_s, options.controller)
     request_t, request_nm = tool_requests(plan)
     rng = np.random.default_rng(seed)
@@ -437,9 +467,12 @@ def replay_batch(
     BatchResult
     """
     options = options or SimulationOptions()
-    params = np.ascontiguousarray(params, dtype=np.float64)
-    if params.ndim != 2 or params.shape[1] != len(NAMES):
-        raise ConfigError(f"params must have shape (n, {len(NAMES)}), got {params.shape}")
+    params = np.asarray(params, dtype=np.float64)
+    if params.ndim != 2 or params.shape[1] not in (len(NAMES), KERNEL_WIDTH):
+        raise ConfigError(
+            f"params must have shape (n, {len(NAMES)}) or (n, {KERNEL_WIDTH}), got {params.shape}"
+        )
+    params = kernel_parameters(params, options.effects)
     n_jobs = params.shape[0]
     scales = np.ascontiguousarray(scales, dtype=np.float64)
     if scales.shape != (n_jobs,):

@@ -14,6 +14,7 @@ from dtid.identification.samples.testdata import from_simulation
 from dtid.simulator.controller import IdleController
 from dtid.simulator.kernel import Job, advance, initial_state, run_plant, run_plant_batch
 from dtid.simulator.linear import three_mass_frf
+from dtid.simulator.mechanisms import kernel_parameters
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import (
     SimulationOptions,
@@ -160,7 +161,14 @@ def test_integration_converges_with_substeps(reference: DrivetrainParameters) ->
         zeros_s, zeros_t = np.zeros(n_speed_max), np.zeros(n_stroke_max)
         loop = options.loop(requests.request_t, requests.test_torque_nm)
         job = Job(
-            reference.as_array(), 1.0, n_sub, zeros_t, zeros_s, zeros_t, out_speed, out_torque
+            kernel_parameters(reference.as_array()),
+            1.0,
+            n_sub,
+            zeros_t,
+            zeros_s,
+            zeros_t,
+            out_speed,
+            out_torque,
         )
         n_speed, n_torque, status = run_plant(loop, job, plan.end_s)
         assert status == 0
