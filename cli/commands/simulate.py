@@ -10,6 +10,7 @@ from dtid.acquisition.plan import TestPlan
 from dtid.cli.commands.common import add_interface_options, positive_float
 from dtid.dbc.loader import load_interface
 from dtid.simulator.controller import IdleController
+from dtid.simulator.mechanisms import BY_NAME, Effects, parse_effect
 from dtid.simulator.parameters import load_parameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 from dtid.simulator.vehicle_frames import simulation_frames
@@ -56,6 +57,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--clean", action="store_true", help="no combustion variation and no sensor noise"
     )
+    parser.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="NAME[:k=v,...]",
+        help="conceal a mechanism beyond the paper's model (repeatable): "
+        f"{', '.join(BY_NAME)}; e.g. progressive_spring:c12_2=600,knee12=0.008 (SI units; "
+        "the main parameter defaults to the middle of its typical range)",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite an existing recording")
     add_interface_options(parser)
     parser.set_defaults(run=run)
@@ -72,10 +82,11 @@ def run(args: argparse.Namespace) -> int:
         duration_s=args.duration,
     )
     controller = IdleController(setpoint_rpm=args.setpoint)
+    effects = Effects({k: v for text in args.effect for k, v in parse_effect(text).items()})
     options = (
-        SimulationOptions.clean(controller=controller)
+        SimulationOptions.clean(controller=controller, effects=effects)
         if args.clean
-        else SimulationOptions(controller=controller)
+        else SimulationOptions(controller=controller, effects=effects)
     )
     interface = load_interface(args.dbc, args.signals)
     result = simulate(parameters, plan, options, seed=args.seed)
