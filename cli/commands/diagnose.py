@@ -5,8 +5,10 @@ identification JSON of these recordings. The two largest amplitudes identify and
 validate, as in ``dtid identify``. Every run's |G_DRV| is compared with the model's, bin by bin,
 each bin standardised by the scatter a recording of the model itself shows there; bands where
 the difference is significant (family-wise error 1 %) make the mismatch map, and for each run
-the coupling values it would ask for on its own are reported as hints. This version locates and
-quantifies a mismatch but models no missing mechanism yet (docs/diagnosis.md).
+the coupling values it would ask for on its own are reported as hints. Where the map finds a
+mismatch, the mechanisms of the library that could explain it are added to the model, refitted
+and kept only where the fit improves significantly and the held-out runs improve too
+(docs/diagnosis.md).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from dtid.cli.commands.identify import (
 from dtid.errors import ConfigError
 from dtid.identification.diagnosis.diagnose import Diagnosis, diagnose_document, diagnose_report
 from dtid.jsonfile import write_json
+from dtid.simulator.mechanisms import BY_NAME
 from dtid.simulator.parameters import load_parameters, reference_parameters
 from dtid.workflow import identify, measured_tests
 
@@ -54,6 +57,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_vehicle_option(parser)
     add_search_options(parser)
     parser.set_defaults(profile_points=0)
+    parser.add_argument(
+        "--mechanisms",
+        nargs="*",
+        metavar="NAME",
+        help=f"mechanisms to consider (default: all of {', '.join(BY_NAME)}; none: locate only)",
+    )
     parser.add_argument("--json", type=Path, help="write the diagnosis as JSON")
     parser.add_argument("--plot", type=Path, help="plot the mismatch map and the FRFs")
     add_interface_options(parser)
@@ -82,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     if args.identification is not None:
         document = read_identification(args.identification)
         tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle)
-        diagnosis = diagnose_document(tests, document, args.identify)
+        diagnosis = diagnose_document(tests, document, args.identify, mechanisms=args.mechanisms)
     else:
         report = identify(
             args.recordings,
@@ -97,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
             profile_points=args.profile_points,
             progress=_progress,
         )
-        diagnosis = diagnose_report(report)
+        diagnosis = diagnose_report(report, mechanisms=args.mechanisms)
     print_diagnosis(diagnosis)
     if args.json:
         write_json(args.json, diagnosis.as_dict())
@@ -117,6 +126,19 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
             f"mismatch |G_{band.frf.upper()}| {band.label} ({band.role}): {band.f_lo_hz:.2f}-"
             f"{band.f_hi_hz:.2f} Hz, {band.excess_db:+.2f} dB at {band.peak_hz:.2f} Hz, "
             f"p = {band.p_value:.2g}, coherence {band.coherence:.2f}"
+        )
+    for candidate in diagnosis.candidates:
+        values = ", ".join(f"{k} = {v:.4g}" for k, v in candidate.parameters().items())
+        print(
+            f"candidate {'+'.join(candidate.mechanisms)} ({values}): statistic "
+            f"{candidate.statistic:.1f}, p = {candidate.p_value:.2g}, criterion "
+            f"{candidate.criterion:.1f}, held-out NRMSE {100 * -candidate.validation_gain:+.1f} %"
+            f"{' accepted' if candidate.accepted else ''}"
+        )
+    if diagnosis.indistinguishable:
+        print(
+            "indistinguishable on these data (neither detected nor excluded): "
+            + ", ".join(diagnosis.indistinguishable)
         )
     for hint in diagnosis.hints:
         edge = " (grid edge)" if hint.at_edge else ""

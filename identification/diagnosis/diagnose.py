@@ -4,11 +4,10 @@
 IdentificationReport`); :func:`diagnose_document` takes the JSON ``dtid identify`` wrote and the
 recordings it came from. Both give a :class:`Diagnosis`: the mismatch map
 (:mod:`dtid.identification.diagnosis.mismatch`), the effective coupling values per run
-(:mod:`dtid.identification.diagnosis.hints`) when something is significant, and the verdict.
-
-This version locates and quantifies a mismatch; it has no library of mechanisms to add to the
-model yet, so a significant mismatch is reported as unexplained, with its bands and hints, and
-``candidates`` is empty (docs/diagnosis.md).
+(:mod:`dtid.identification.diagnosis.hints`) when something is significant, the mechanisms of
+the library screened, refitted and tested (:mod:`dtid.identification.diagnosis.refit`), and
+the verdict. A mismatch no mechanism explains is reported as unexplained, with its bands and
+hints (docs/diagnosis.md).
 """
 
 from __future__ import annotations
@@ -23,6 +22,7 @@ import numpy as np
 from dtid.errors import ConfigError
 from dtid.identification.diagnosis.hints import EffectiveValue, effective_values
 from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
+from dtid.identification.diagnosis.refit import Candidate, Refit, Screened, diagnose_mechanisms
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import (
     IdentificationReport,
@@ -31,10 +31,8 @@ from dtid.identification.pipeline import (
     validation_runs,
     with_variation,
 )
+from dtid.simulator.mechanisms import BY_NAME, MECHANISMS
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
-
-MECHANISMS: tuple[str, ...] = ()
-"""Mechanisms this version can add to the model and refit (none yet; docs/diagnosis.md)."""
 
 
 @dataclass(frozen=True)
@@ -54,6 +52,14 @@ class Diagnosis:
         Effective coupling values per run (empty when the model is adequate).
     seconds
         Wall time of the diagnosis (not of the identification), s.
+    screened
+        The screen of every mechanism considered.
+    candidates
+        Every model refitted, best criterion first.
+    accepted
+        The accepted models in the order accepted (each extends the one before).
+    after
+        The mismatch map of the last accepted model (None when none was).
     """
 
     baseline: Mapping[str, Any]
@@ -61,6 +67,27 @@ class Diagnosis:
     mismatch: MismatchMap
     hints: tuple[EffectiveValue, ...]
     seconds: float
+    screened: tuple[Screened, ...] = ()
+    candidates: tuple[Candidate, ...] = ()
+    accepted: tuple[Candidate, ...] = ()
+    after: MismatchMap | None = None
+
+    @property
+    def mechanisms(self) -> tuple[str, ...]:
+        """The accepted mechanisms."""
+        return self.accepted[-1].mechanisms if self.accepted else ()
+
+    @property
+    def indistinguishable(self) -> tuple[str, ...]:
+        """Mechanisms these data can neither detect nor exclude (at their typical magnitude)."""
+        return tuple(
+            s.mechanism for s in self.screened if not s.detectable(self.mismatch.threshold_z)
+        )
+
+    @property
+    def unexplained(self) -> tuple[Any, ...]:
+        """The bands left: the accepted model's, else the identified model's."""
+        return (self.after or self.mismatch).bands
 
     @property
     def adequate(self) -> bool:
@@ -84,8 +111,28 @@ class Diagnosis:
         count = len(test.bands)
         text = (
             f"The identified model misses these recordings in {count} "
-            f"band{'s' if count > 1 else ''} (most significant: {where}); no mechanism is "
-            "modelled in this version, so the mismatch is unexplained"
+            f"band{'s' if count > 1 else ''} (most significant: {where})"
+        )
+        if self.accepted:
+            last = self.accepted[-1]
+            values = ", ".join(
+                f"{name} = {value:.3g} {_unit(name)}" for name, value in last.parameters().items()
+            )
+            verb = "explains" if len(last.mechanisms) == 1 else "explain"
+            text += (
+                f"; {' and '.join(last.mechanisms)} {verb}"
+                f" it ({values}; p = {max(c.p_value for c in self.accepted):.1g}, held-out NRMSE "
+                f"{_held_out_change(self.accepted)})"
+            )
+            left = len(self.unexplained)
+            if left:
+                text += f"; {left} band{'s' if left > 1 else ''} remain unexplained"
+            return text + "."
+        tried = ", ".join(c.mechanisms[0] for c in self.candidates)
+        text += (
+            f"; no mechanism of the library explains it (refitted: {tried})"
+            if tried
+            else "; no mechanism of the library could explain its signature"
         )
         hint = self.strongest_hint()
         if hint:
@@ -121,20 +168,53 @@ class Diagnosis:
             "adequate": self.adequate,
             "mismatch": bands,
             "baseline": {key: self.baseline[key] for key in ("parameters", "nrmse", "objective")},
-            "candidates": [],
-            "verdict": {
+            "candidates": [candidate.as_dict() for candidate in self.candidates],
+            "verdict": self._verdict(bands),
+            "test": self.mismatch.as_dict(),
+            "screen": [
+                {
+                    "mechanism": s.mechanism,
+                    "visible_z": s.visible_z,
+                    "gain": s.gain,
+                    "detectable": s.detectable(self.mismatch.threshold_z),
+                }
+                for s in self.screened
+            ],
+            "hints": [hint.as_dict() for hint in self.hints],
+            "library": [m.name for m in MECHANISMS],
+            "seconds": self.seconds,
+        }
+
+    def _verdict(self, bands: list[dict[str, object]]) -> dict[str, object]:
+        common = {
+            "explanation": self.sentence(),
+            "indistinguishable": list(self.indistinguishable),
+        }
+        if not self.accepted:
+            return {
                 "mechanisms": [],
-                "explanation": self.sentence(),
+                **common,
                 "parameters": self.baseline["parameters"],
                 "intervals": self.baseline.get("intervals", {}),
                 "nrmse": self.baseline["nrmse"],
                 "unexplained": bands,
-                "indistinguishable": [],
+            }
+        last = self.accepted[-1]
+        drivetrain = last.drivetrain().as_dict()
+        return {
+            "mechanisms": list(last.mechanisms),
+            **common,
+            "parameters": {
+                **{n: drivetrain[n] for n in self.baseline["parameters"] if n in drivetrain},
+                **last.parameters(),
             },
-            "test": self.mismatch.as_dict(),
-            "hints": [hint.as_dict() for hint in self.hints],
-            "library": list(MECHANISMS),
-            "seconds": self.seconds,
+            "intervals": {},
+            "intervals_note": "not computed for a model with mechanisms in this version",
+            "nrmse": {
+                "fit": last.nrmse.get("fit", {}),
+                "validation": last.nrmse.get("validation", {}),
+            },
+            "unexplained": [band.as_dict() for band in self.unexplained],
         }
 
 
@@ -166,11 +246,29 @@ def amplitude_trend(values: Sequence[EffectiveValue]) -> str:
     return "differing between the amplitudes"
 
 
+def _unit(name: str) -> str:
+    for mechanism in MECHANISMS:
+        for spec in mechanism.parameters:
+            if spec.name == name:
+                return spec.unit
+    return ""
+
+
+def _held_out_change(accepted: Sequence[Candidate]) -> str:
+    """The held-out NRMSE's change over the accepted steps, as text."""
+    gains = [c.validation_gain for c in accepted]
+    if any(np.isnan(g) for g in gains):
+        return "not measured (no held-out run)"
+    remaining = float(np.prod([1.0 - g for g in gains]))
+    return f"{-100 * (1.0 - remaining):+.0f} %"
+
+
 def diagnose(
     parameters: DrivetrainParameters,
     selections: Sequence[tuple[str, RunSelection]],
     baseline: Mapping[str, Any],
     draws: int = DRAWS,
+    mechanisms: Sequence[str] | None = None,
 ) -> Diagnosis:
     """Diagnose a parameter set against its identification and validation runs.
 
@@ -185,21 +283,54 @@ def diagnose(
         ``intervals``).
     draws
         Model recordings per run for the scatter.
+    mechanisms
+        The mechanisms to consider (default: the whole library; empty: none).
     """
     began = time.perf_counter()
+    unknown = [m for m in mechanisms or () if m not in BY_NAME]
+    if unknown:
+        raise ConfigError(f"unknown mechanism {unknown[0]!r}; the library: {', '.join(BY_NAME)}")
     found = mismatch_map(parameters, selections, draws)
-    hints = () if found.adequate else tuple(effective_values(parameters, selections))
-    return Diagnosis(baseline, parameters, found, hints, time.perf_counter() - began)
+    roles = dict(selections)
+    refit = Refit(parameters, roles["fit"], roles.get("validation"))
+    allowed = list(BY_NAME) if mechanisms is None else list(mechanisms)
+    screened: list[Screened] = refit.screen(found) if allowed else []
+    screened = [s for s in screened if s.mechanism in allowed]
+    candidates: list[Candidate] = []
+    accepted: list[Candidate] = []
+    after = None
+    if not found.adequate and allowed:
+        screened, candidates, accepted = diagnose_mechanisms(refit, found, allowed, screened)
+        if accepted:
+            after = mismatch_map(accepted[-1].row, selections, draws)
+    hints = () if found.adequate or accepted else tuple(effective_values(parameters, selections))
+    return Diagnosis(
+        baseline,
+        parameters,
+        found,
+        hints,
+        time.perf_counter() - began,
+        tuple(screened),
+        tuple(candidates),
+        tuple(accepted),
+        after,
+    )
 
 
-def diagnose_report(report: IdentificationReport, draws: int = DRAWS) -> Diagnosis:
+def diagnose_report(
+    report: IdentificationReport,
+    draws: int = DRAWS,
+    mechanisms: Sequence[str] | None = None,
+) -> Diagnosis:
     """Diagnose an identification (:func:`dtid.workflow.identify`'s report)."""
     if report.fit is None:
         raise ValueError("the report holds no identification runs to diagnose")
     selections = [("fit", report.fit)]
     if report.validation is not None and report.validation.tests:
         selections.append(("validation", report.validation))
-    return diagnose(report.identification.parameters, selections, report.as_dict(), draws)
+    return diagnose(
+        report.identification.parameters, selections, report.as_dict(), draws, mechanisms
+    )
 
 
 def diagnose_document(
@@ -207,6 +338,7 @@ def diagnose_document(
     document: Mapping[str, Any],
     identify_amplitudes: Sequence[float] | None = None,
     draws: int = DRAWS,
+    mechanisms: Sequence[str] | None = None,
 ) -> Diagnosis:
     """Diagnose an identification JSON of ``dtid identify`` against the recordings it came from.
 
@@ -248,4 +380,4 @@ def diagnose_document(
             )
         if selection.tests:
             selections.append((role, with_variation(selection, variations)))
-    return diagnose(parameters, selections, document, draws)
+    return diagnose(parameters, selections, document, draws, mechanisms)

@@ -203,7 +203,7 @@ class MismatchMap:
 
 
 def mismatch_map(
-    parameters: DrivetrainParameters,
+    parameters: DrivetrainParameters | np.ndarray,
     selections: Sequence[tuple[str, RunSelection]],
     draws: int = DRAWS,
     family_error: float = FAMILY_ERROR,
@@ -213,7 +213,8 @@ def mismatch_map(
     Parameters
     ----------
     parameters
-        The model's parameters (K and T_loss as identified).
+        The model's parameters (K and T_loss as identified), or its kernel row with mechanisms
+        added (:func:`model_row`).
     selections
         ``(role, selection)`` pairs: the identification's runs (``fit``) and the held-out ones
         (``validation``), each test with the combustion variation the model repeats.
@@ -310,11 +311,22 @@ class ModelScatter(NamedTuple):
         return self.estimate.drv_db - self.model_db
 
 
+def model_row(parameters: DrivetrainParameters | np.ndarray) -> np.ndarray:
+    """A model as the kernel row it is simulated with: a drivetrain parameter set, or a row
+    that has mechanism columns already (:mod:`dtid.simulator.mechanisms`)."""
+    if isinstance(parameters, DrivetrainParameters):
+        return parameters.as_array()
+    return np.asarray(parameters, dtype=np.float64)
+
+
 def model_scatter(
-    parameters: DrivetrainParameters, role: str, selection: RunSelection, draws: int
+    parameters: DrivetrainParameters | np.ndarray,
+    role: str,
+    selection: RunSelection,
+    draws: int,
 ) -> list[ModelScatter]:
     """Each run's model curve and scatter (see the module notes), for one selection."""
-    params = parameters.as_array()[None]
+    params = model_row(parameters)[None]
     out = []
     for test, runs in zip(selection.tests, selection.runs, strict=True):
         model_test = test.model_test(runs)

@@ -58,6 +58,7 @@ from dtid.identification.frf.closed_loop import (
 from dtid.identification.model.idle_loop import IdleLoop
 from dtid.identification.samples.testdata import Series
 from dtid.simulator.controller import IdleController
+from dtid.simulator.mechanisms import EXTRA_INDEX, KERNEL_WIDTH
 from dtid.simulator.parameters import INDEX
 from dtid.simulator.simulate import BatchResult, SimulationOptions, replay_batch
 from dtid.simulator.vehicle_data import VehicleData
@@ -215,11 +216,16 @@ class ModelTest:
 
     def model_parameters(self, params: np.ndarray) -> np.ndarray:
         """The parameter sets as the model simulates them: with K = 1 where the drive is the
-        measured torque, which already holds the engine's gain."""
+        measured torque, which already holds the engine's gain (1/g_T with a torque-sensor gain:
+        the drive is then g_T times the torque delivered), its lag and its cylinders' spread."""
         if self.loop is None or self.loop.by_request:
             return params
         params = params.copy()
         params[:, INDEX["K"]] = 1.0
+        if params.shape[1] == KERNEL_WIDTH:
+            params[:, INDEX["K"]] = 1.0 / params[:, EXTRA_INDEX["g_T"]]
+            params[:, EXTRA_INDEX["tau_m"]] = 0.0
+            params[:, EXTRA_INDEX["share"]] = 0.0
         return params
 
 
@@ -229,7 +235,8 @@ def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
     Parameters
     ----------
     params
-        (n, 12) parameter sets ordered as :data:`dtid.simulator.parameters.NAMES`, SI units.
+        (n, 12) parameter sets ordered as :data:`dtid.simulator.parameters.NAMES`, SI units, or
+        (n, :data:`dtid.simulator.mechanisms.KERNEL_WIDTH`) with the mechanisms' columns.
     test
         The test to repeat.
 

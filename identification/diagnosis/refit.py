@@ -1,0 +1,469 @@
+"""Name the physics the model left out: screen the mechanism library, refit, test.
+
+Three steps, each on the identifying runs only (the held-out runs judge the result):
+
+1. **Screen** (one batched simulation). At the identified model, the Jacobian of the model's
+   |G_DRV| with respect to the ten free parameters, and each mechanism's effect at the two ends
+   of its typical magnitude (:attr:`dtid.simulator.mechanisms.MechanismParameter.typical`; both
+   signs for a signed one), all in units of the recording's scatter (the mismatch map's z). An
+   effect the drivetrain parameters can imitate is projected out: what remains is what only the
+   mechanism can do. Where that stays below the map's own detection threshold (``threshold_z``)
+   even at the top of the typical range, these data cannot detect or exclude the mechanism: it is
+   listed as *indistinguishable* (a uniform torque-sensor gain, for one, scales |G_DRV| as the
+   inertias do). The others are ranked by how much of the residual the mechanism and the
+   drivetrain's linearised compensation of it leave unexplained (a least-squares gain); the best
+   :data:`REFIT_COUNT` detectable ones are refitted, each started from that compensation.
+2. **Refit**. The model with the mechanism added is refitted from the identified values (warm
+   start; the ten parameters of setup 4 free within +-:data:`REFIT_SPAN`, the mechanism's within
+   its bounds) by the search's last stages (Nelder-Mead, then Levenberg-Marquardt,
+   :func:`dtid.identification.search.identify.refine`); the baseline is refitted the same way, so
+   that the comparison credits the mechanism, not the extra polish.
+3. **Test**. The improvement is the intervals' own likelihood-ratio statistic
+   (:func:`dtid.identification.uncertainty.profile.statistic`: the sandwich form, whose noise
+   scale takes the residual's correlation length, i.e. the effective sample size), evaluated on
+   :data:`TEST_REALIZATIONS` realizations of the model, chi-square with as many degrees of
+   freedom as the mechanism has parameters. A mechanism is accepted when p < :data:`ACCEPT_P`
+   **and** the held-out runs' NRMSE falls. Candidates are ranked by an information criterion, AIC
+   in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
+   After the first is accepted, the next best screened candidates are tried on top of it
+   (greedy, at most :data:`MAX_MECHANISMS`), each tested against the model before it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from dtid.identification.diagnosis.mismatch import MismatchMap
+from dtid.identification.model.response import model_drv_db
+from dtid.identification.pipeline import RunSelection
+from dtid.identification.search.identify import Objective, SearchSettings, refine
+from dtid.identification.search.objective import nrmse
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.identification.uncertainty.profile import statistic
+from dtid.simulator.mechanisms import (
+    BY_NAME,
+    EXTRA_INDEX,
+    MECHANISMS,
+    Mechanism,
+    kernel_parameters,
+)
+from dtid.simulator.parameters import NAMES, DrivetrainParameters
+
+ACCEPT_P = 0.01
+"""A mechanism must improve the fit with p below this."""
+MAX_MECHANISMS = 2
+"""Most mechanisms accepted together (greedy)."""
+REFIT_COUNT = 10
+"""Screened candidates refitted, the best by their linearised gain first."""
+REFIT_SPAN = 0.5
+"""Relative half-width of the drivetrain parameters' box in a refit, around the identified
+values."""
+SCREEN_STEP = 0.02
+"""Normalised step of the screen's finite differences (2 % of the box, about 2 % of a value)."""
+TEST_REALIZATIONS = 8
+"""Realizations of the model behind the likelihood-ratio test (twice the search's: the test
+compares two optima each chosen on the search's own draws)."""
+REFIT_SETTINGS = SearchSettings(final_evaluations=300, polish_evaluations=300)
+"""Budget of each refit's Nelder-Mead and Levenberg-Marquardt stages."""
+
+
+@dataclass(frozen=True)
+class Screened:
+    """What the screen says of one mechanism.
+
+    Attributes
+    ----------
+    mechanism
+        Its name.
+    visible_z
+        Largest |z| of its effect at the top of its typical range after the drivetrain
+        parameters have imitated what they can (linearised).
+    gain
+        Share of the identifying runs' squared standardised residual that its remaining effect
+        explains (linearised, 0..1).
+    start
+        The magnitude of its main parameter the screen preferred, SI units.
+    compensation
+        The change of the drivetrain's normalised free values that best accompanies it there
+        (linearised): where a refit starts.
+    """
+
+    mechanism: str
+    visible_z: float
+    gain: float
+    start: float
+    compensation: np.ndarray = dataclasses.field(repr=False, default_factory=lambda: np.zeros(0))
+
+    def detectable(self, threshold_z: float) -> bool:
+        """Whether the data can see it at all (its imitation-free effect passes the map's
+        threshold)."""
+        return self.visible_z >= threshold_z
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One refitted model with mechanisms added, and its test against the model before it.
+
+    Attributes
+    ----------
+    mechanisms
+        The mechanisms it adds (one, or two for a greedy combination).
+    row
+        Its kernel parameter row (:data:`dtid.simulator.mechanisms.KERNEL_WIDTH`).
+    objective
+        Eq. (17) on the identifying runs.
+    nrmse
+        ``{"fit": {run: value}, "validation": {run: value}}``.
+    statistic, p_value
+        The likelihood-ratio statistic against the model it extends and its chi-square p-value.
+    criterion
+        2 k - statistic (AIC in the statistic's units; below zero it pays for its parameters).
+    validation_gain
+        Relative fall of the held-out runs' summed NRMSE against the model it extends (NaN
+        without held-out runs).
+    accepted
+        p < :data:`ACCEPT_P` and the held-out NRMSE fell.
+    """
+
+    mechanisms: tuple[str, ...]
+    row: np.ndarray
+    objective: float
+    nrmse: dict[str, dict[str, float]]
+    statistic: float
+    p_value: float
+    criterion: float
+    validation_gain: float
+    accepted: bool
+
+    def parameters(self) -> dict[str, float]:
+        """The added mechanisms' parameter values, SI units."""
+        return {
+            name: float(self.row[EXTRA_INDEX[name]])
+            for m in self.mechanisms
+            for name in BY_NAME[m].names()
+        }
+
+    def drivetrain(self) -> DrivetrainParameters:
+        """The drivetrain parameters refitted with it."""
+        return DrivetrainParameters.from_array(self.row[: len(NAMES)])
+
+    def as_dict(self) -> dict[str, object]:
+        """The entry of the diagnosis JSON's ``candidates``."""
+        return {
+            "mechanism": "+".join(self.mechanisms),
+            "parameters": self.parameters(),
+            "drivetrain": self.drivetrain().as_dict(),
+            "nrmse": self.nrmse,
+            "objective": self.objective,
+            "statistic": self.statistic,
+            "p_value": self.p_value,
+            "criterion": self.criterion,
+            "validation_gain": self.validation_gain,
+            "accepted": self.accepted,
+        }
+
+
+@dataclass
+class Refit:
+    """The identifying and held-out runs of a diagnosis, and the models tried on them.
+
+    Parameters
+    ----------
+    parameters
+        The identified model.
+    fit, validation
+        The identifying runs and the held-out ones (None: none).
+    settings
+        Budget of each refit.
+    """
+
+    parameters: DrivetrainParameters
+    fit: RunSelection
+    validation: RunSelection | None = None
+    settings: SearchSettings = REFIT_SETTINGS
+
+    def __post_init__(self) -> None:
+        p = self.parameters
+        self.base = Parameterization.around(p, p.T_loss, p.K, span=REFIT_SPAN).modal_coordinates()
+        self.start_unit = self.base.unit(
+            np.array([[theta_from_parameters(p)[n] for n in THETA_NAMES]])
+        )[0]
+
+    def objective(self, extra: Extra, realizations: int | None = None) -> Objective:
+        """Eq. (17) on the identifying runs, over the base's and ``extra``'s free values."""
+        tests = [t.model_test(runs) for t, runs in zip(self.fit.tests, self.fit.runs, strict=True)]
+        if realizations is not None:
+            tests = [dataclasses.replace(t, realizations=realizations) for t in tests]
+        measured = [
+            [t.estimates[i].drv_db for i in runs]
+            for t, runs in zip(self.fit.tests, self.fit.runs, strict=True)
+        ]
+        return Objective(extra, tests, measured)  # type: ignore[arg-type]
+
+    def curves(
+        self,
+        rows: np.ndarray,
+        selection: RunSelection | None = None,
+        realizations: int | None = None,
+    ) -> list[np.ndarray]:
+        """Model |G_DRV| (n, bins) per run of a selection (the identifying runs by default)."""
+        selection = selection or self.fit
+        out = []
+        for test, runs in zip(selection.tests, selection.runs, strict=True):
+            model_test = test.model_test(runs)
+            if realizations is not None:
+                model_test = dataclasses.replace(model_test, realizations=realizations)
+            out.extend(model_drv_db(rows, model_test))
+        return out
+
+    def run_nrmse(self, row: np.ndarray) -> dict[str, dict[str, float]]:
+        """``{"fit": {...}, "validation": {...}}`` NRMSE per run of one model."""
+        out: dict[str, dict[str, float]] = {}
+        for role, selection in (("fit", self.fit), ("validation", self.validation)):
+            if selection is None or not selection.tests:
+                continue
+            curves = self.curves(row[None], selection)
+            labels = [
+                f"{t.name} @ {t.estimates[i].run.amplitude_nm:g} N*m"
+                for t, runs in zip(selection.tests, selection.runs, strict=True)
+                for i in runs
+            ]
+            estimates = selection.estimates()
+            out[role] = {
+                label: float(nrmse(e.drv_db, c)[0])
+                for label, e, c in zip(labels, estimates, curves, strict=True)
+            }
+        return out
+
+    def refit(self, extra: Extra, shift: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+        """Refine from ``extra``'s row, its drivetrain values moved by ``shift`` (normalised),
+        with ``extra``'s mechanisms free; the kernel row reached and eq. (17) there."""
+        objective = self.objective(extra)
+        base = self.base.unit(np.array([theta_of(extra.row)]))[0]
+        if shift is not None and len(shift):
+            base = np.clip(base + shift, 0.0, 1.0)
+        start = np.concatenate([base, extra.start_unit()])
+        unit, value = refine(objective, start, self.settings)
+        return extra.parameters(unit[None])[0], value
+
+    def screen(self, found: MismatchMap, row: np.ndarray | None = None) -> list[Screened]:
+        """Step 1 (see the module notes), at ``row`` (the identified model by default)."""
+        row = kernel_parameters(self.parameters.as_array()) if row is None else row
+        scatter = np.concatenate([r.scatter_db for r in found.residuals if r.role == "fit"])
+        residual = np.concatenate([r.residual_db for r in found.residuals if r.role == "fit"])
+        extra = Extra(self.base, row, ())
+        unit = self.start_unit
+        steps = np.clip(unit + SCREEN_STEP, 0, 1) - np.clip(unit - SCREEN_STEP, 0, 1)
+        up = np.clip(unit + np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
+        down = np.clip(unit - np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
+        rows = [extra.parameters(np.vstack([up, down])), row[None]]
+        trials: list[tuple[str, float]] = []
+        for mechanism in MECHANISMS:
+            for value in _magnitudes(mechanism):
+                trials.append((mechanism.name, value))
+                rows.append(_with(row, mechanism, value)[None])
+        curves = np.hstack(self.curves(np.vstack(rows)))
+        n = len(unit)
+        jac = ((curves[:n] - curves[n : 2 * n]) / steps[:, None] / scatter).T
+        base = curves[2 * n]
+        usable = np.isfinite(jac).all(axis=1) & np.isfinite(base) & np.isfinite(residual)
+        jac, z = jac[usable], (residual / scatter)[usable]
+        inverse = np.linalg.pinv(jac)
+        projector = np.eye(len(z)) - jac @ inverse
+        z_free = projector @ z
+        total = float(z_free @ z_free) or 1.0
+        by_name: dict[str, Screened] = {}
+        for (name, value), curve in zip(trials, curves[2 * n + 1 :], strict=True):
+            effect = ((curve - base) / scatter)[usable]
+            if not np.isfinite(effect).all():
+                continue
+            left = projector @ (z - effect)  # what the mechanism and the compensation leave
+            visible = float(np.max(np.abs(projector @ effect)))
+            gain = max(0.0, 1.0 - float(left @ left) / total)
+            old = by_name.get(name)
+            if old is None or gain > old.gain:
+                compensation = np.clip(unit + inverse @ (z - effect), 0, 1) - unit
+                old_visible = old.visible_z if old else 0.0
+                by_name[name] = Screened(name, max(visible, old_visible), gain, value, compensation)
+            else:
+                by_name[name] = dataclasses.replace(old, visible_z=max(visible, old.visible_z))
+        return sorted(by_name.values(), key=lambda s: -s.gain)
+
+    def test(
+        self, mechanisms: tuple[str, ...], row: np.ndarray, before: np.ndarray, k: int
+    ) -> Candidate:
+        """Step 3: a refitted model against the one it extends (``k`` parameters added)."""
+        measured = [e.drv_db for e in self.fit.estimates()]
+        curves = self.curves(np.vstack([row, before]), realizations=TEST_REALIZATIONS)
+        after_db = [c[0] for c in curves]
+        before_db = [c[1] for c in curves]
+        if not all(np.isfinite(c).all() for c in after_db):
+            lam = 0.0
+        else:
+            lam = statistic(measured, after_db, before_db)
+        p_value = float(stats.chi2.sf(lam, k))
+        scores = self.run_nrmse(row)
+        previous = self.run_nrmse(before)
+        held = sum(scores.get("validation", {}).values())
+        held_before = sum(previous.get("validation", {}).values())
+        gain = 1.0 - held / held_before if held_before > 0 else float("nan")
+        return Candidate(
+            mechanisms,
+            row,
+            float(sum(scores["fit"].values())),
+            scores,
+            float(lam),
+            p_value,
+            float(2 * k - lam),
+            float(gain),
+            bool(p_value < ACCEPT_P and (np.isnan(gain) or gain > 0)),
+        )
+
+
+@dataclass(frozen=True)
+class Extra:
+    """The base's free values followed by some mechanisms' parameters: what a refit searches.
+
+    Duck-types :class:`dtid.identification.search.parameterization.Parameterization` for
+    :class:`dtid.identification.search.identify.Objective` (its ``parameters`` and ``free``).
+
+    Attributes
+    ----------
+    base
+        The drivetrain's coordinates.
+    row
+        Kernel row giving every mechanism parameter not searched.
+    mechanisms
+        The mechanisms whose parameters are searched (within their bounds).
+    """
+
+    base: Parameterization
+    row: np.ndarray
+    mechanisms: tuple[Mechanism, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The searched mechanism parameters."""
+        return tuple(n for m in self.mechanisms for n in m.names())
+
+    @property
+    def free(self) -> tuple[str, ...]:
+        """All searched parameters."""
+        return (*self.base.free, *self.names)
+
+    def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        specs = [p for m in self.mechanisms for p in m.parameters]
+        return np.array([p.lower for p in specs]), np.array([p.upper for p in specs])
+
+    def parameters(self, unit: np.ndarray) -> np.ndarray:
+        """Kernel rows (n, KERNEL_WIDTH) from normalised values (n, n_free)."""
+        unit = np.atleast_2d(unit)
+        n_base = len(self.base.free)
+        out = np.repeat(self.row[None], unit.shape[0], axis=0)
+        out[:, : len(NAMES)] = self.base.parameters(unit[:, :n_base])
+        if self.names:
+            lower, upper = self._bounds()
+            columns = [EXTRA_INDEX[n] for n in self.names]
+            out[:, columns] = lower + unit[:, n_base:] * (upper - lower)
+        return out
+
+    def start_unit(self) -> np.ndarray:
+        """The mechanisms' values in ``row``, normalised."""
+        if not self.names:
+            return np.zeros(0)
+        lower, upper = self._bounds()
+        values = np.array([self.row[EXTRA_INDEX[n]] for n in self.names])
+        return (values - lower) / (upper - lower)
+
+
+def theta_of(row: np.ndarray) -> list[float]:
+    """The setup-4 values (:data:`THETA_NAMES`) of a kernel row."""
+    values = theta_from_parameters(DrivetrainParameters.from_array(row[: len(NAMES)]))
+    return [values[name] for name in THETA_NAMES]
+
+
+def _magnitudes(mechanism: Mechanism) -> list[float]:
+    """Main-parameter values the screen tries: the ends of the typical range, both signs where
+    the parameter may be negative (about its neutral value)."""
+    main = mechanism.main
+    low, high = main.typical
+    values = [low, high]
+    if main.lower < main.neutral:  # signed about neutral
+        values += [2 * main.neutral - low, 2 * main.neutral - high]
+    return values
+
+
+def _with(row: np.ndarray, mechanism: Mechanism, value: float) -> np.ndarray:
+    """``row`` with a mechanism's main parameter at ``value`` and its others in the middle of
+    their typical ranges."""
+    out = row.copy()
+    for spec in mechanism.parameters[1:]:
+        if out[EXTRA_INDEX[spec.name]] == spec.neutral:
+            out[EXTRA_INDEX[spec.name]] = 0.5 * sum(spec.typical)
+    out[EXTRA_INDEX[mechanism.main.name]] = value
+    return out
+
+
+def diagnose_mechanisms(
+    refit: Refit,
+    found: MismatchMap,
+    allowed: Sequence[str] | None = None,
+    screened: Sequence[Screened] | None = None,
+) -> tuple[list[Screened], list[Candidate], list[Candidate]]:
+    """Screen, refit and test (the module notes).
+
+    Parameters
+    ----------
+    refit
+        The runs and the identified model.
+    found
+        The identified model's mismatch map (its scatter standardises the screen).
+    allowed
+        Mechanisms to consider (default: the whole library).
+    screened
+        The screen, if already made (:meth:`Refit.screen`).
+
+    Returns
+    -------
+    tuple
+        The screen of every mechanism, every candidate tried (best criterion first) and the
+        accepted ones in the order accepted.
+    """
+    names = list(allowed) if allowed else [m.name for m in MECHANISMS]
+    screened = [s for s in screened or refit.screen(found) if s.mechanism in names]
+    chosen = [s for s in screened if s.detectable(found.threshold_z)][:REFIT_COUNT]
+    if not chosen:
+        return screened, [], []
+    neutral = kernel_parameters(refit.parameters.as_array())
+    baseline_row, _ = refit.refit(Extra(refit.base, neutral, ()))
+    tried: list[Candidate] = []
+    accepted: list[Candidate] = []
+    current, current_row, pool = (), baseline_row, list(chosen)
+    while pool and len(current) < MAX_MECHANISMS:
+        round_ = []
+        for s in pool:
+            mechanism = BY_NAME[s.mechanism]
+            start_row = _with(current_row, mechanism, s.start)
+            extra = Extra(refit.base, start_row, tuple(BY_NAME[m] for m in (*current, s.mechanism)))
+            shift = s.compensation if not current else None
+            row, _ = refit.refit(extra, shift)
+            k = len(mechanism.parameters)
+            round_.append(refit.test((*current, s.mechanism), row, current_row, k))
+        tried.extend(round_)
+        best = min(round_, key=lambda c: c.criterion)
+        if not best.accepted:
+            break
+        accepted.append(best)
+        current, current_row = best.mechanisms, best.row
+        pool = [s for s in pool if s.mechanism not in current][: REFIT_COUNT // 2]
+    tried.sort(key=lambda c: c.criterion)
+    return screened, tried, accepted
