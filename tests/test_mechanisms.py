@@ -1,0 +1,160 @@
+"""The mechanism library (dtid.simulator.mechanisms) in the kernel: neutral values give the
+paper's plant bit for bit, and each term does what its physics says, checked against closed
+forms; the command line conceals them and names a wrong one clearly."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dtid.acquisition.plan import TestPlan
+from dtid.cli import main as dtid
+from dtid.errors import ConfigError
+from dtid.simulator.controller import IdleController
+from dtid.simulator.couplings import second_stage_torque
+from dtid.simulator.mechanisms import (
+    EXTRA_INDEX,
+    KERNEL_WIDTH,
+    MECHANISMS,
+    NEUTRAL,
+    Effects,
+    kernel_parameters,
+    parse_effect,
+)
+from dtid.simulator.parameters import NAMES
+from dtid.simulator.simulate import SimulationOptions, simulate
+
+IDLE = TestPlan(amplitudes_nm=(0.01,), validation_nm=0.0, duration_s=4.0, settle_s=4.0)
+"""Almost no excitation: the plant idles at its set-point."""
+
+
+def run(reference, plan=IDLE, closed_loop=True, **effects: float):
+    controller = IdleController(closed_loop=closed_loop)
+    options = SimulationOptions.clean(effects=Effects(effects), controller=controller)
+    return simulate(reference, plan, options, seed=2)
+
+
+def test_every_parameter_has_one_slot_and_a_neutral_value_inside_its_bounds():
+    names = [p.name for m in MECHANISMS for p in m.parameters]
+    assert len(names) == len(set(names)) == KERNEL_WIDTH - len(NAMES)
+    assert sorted(EXTRA_INDEX.values()) == list(range(len(NAMES), KERNEL_WIDTH))
+    for mechanism in MECHANISMS:
+        assert mechanism.physics.endswith(".")
+        for p in mechanism.parameters:
+            assert p.lower <= p.neutral <= p.upper, p
+            assert p.lower <= p.typical[0] < p.typical[1] <= p.upper, p
+    assert {m.name for m in MECHANISMS} == {
+        "progressive_spring",
+        "asymmetric_play",
+        "friction_hysteresis",
+        "quadratic_damping",
+        "clutch_two_stage",
+        "gearbox_drag",
+        "accessory_mode",
+        "torque_lag",
+        "torque_sensor_gain",
+        "cylinder_imbalance",
+    }
+
+
+def test_neutral_mechanisms_are_the_papers_plant_bit_for_bit(reference):
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=10.0)
+    plain = simulate(reference, plan, SimulationOptions(), seed=3)
+    neutral = {p.name: p.neutral for m in MECHANISMS for p in m.parameters}
+    given = simulate(reference, plan, SimulationOptions(effects=Effects(neutral)), seed=3)
+    np.testing.assert_array_equal(plain.speed_rpm, given.speed_rpm)
+    np.testing.assert_array_equal(plain.mean_torque_nm, given.mean_torque_nm)
+    np.testing.assert_array_equal(kernel_parameters(reference.as_array())[12:], NEUTRAL)
+
+
+def test_torque_sensor_gain_scales_the_measurement_and_nothing_else(reference):
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=10.0)
+    plain, scaled = run(reference, plan), run(reference, plan, g_T=1.1)
+    np.testing.assert_array_equal(plain.speed_rpm, scaled.speed_rpm)
+    np.testing.assert_allclose(scaled.mean_torque_nm, 1.1 * plain.mean_torque_nm, rtol=1e-12)
+
+
+def test_cylinder_imbalance_gives_the_first_cylinder_its_share(reference):
+    share = 0.2
+    result = run(reference, closed_loop=False, share=share)  # no loop reacting to the half order
+    late = result.torque_t > 3.0
+    torque, cylinder = result.mean_torque_nm[late], result.cylinder[late]
+    first = torque[cylinder == 0].mean()
+    others = torque[cylinder != 0].mean()
+    assert first / others == pytest.approx((1 + share) / (1 - share / 3), rel=0.01)
+    even = run(reference, closed_loop=False)
+    assert torque.mean() == pytest.approx(even.mean_torque_nm[even.torque_t > 3.0].mean(), rel=0.01)
+
+
+def test_gearbox_drag_preloads_the_clutch_by_drag_over_stiffness(reference):
+    """At idle the drag d3 * w3 passes through the clutch: its twist is that over c23, beyond
+    half the gear play (the backlash rests on its stop)."""
+    d3 = 0.02
+    result = run(reference, d3=d3)
+    late = result.speed_t > 6.0
+    w3 = result.speed_rpm[late].mean() * np.pi / 30
+    expected = reference.eps23 / 2 + d3 * w3 / reference.c23
+    assert result.delta23_rad[late].mean() == pytest.approx(expected, rel=0.02)
+    free = run(reference)
+    assert abs(free.delta23_rad[free.speed_t > 6.0].mean()) < 0.2 * expected
+
+
+def test_second_stage_adds_its_stiffness_beyond_the_knee():
+    assert second_stage_torque(0.005, 600.0, 0.008) == 0.0
+    assert second_stage_torque(0.010, 600.0, 0.008) == pytest.approx(600.0 * 0.002)
+    assert second_stage_torque(-0.010, 600.0, 0.008) == pytest.approx(-600.0 * 0.002)
+    assert second_stage_torque(0.5, 0.0, 0.008) == 0.0
+
+
+def test_torque_lag_filters_the_delivered_torque_stroke_by_stroke(reference):
+    """Open loop, clean: each stroke's torque moves from the last towards the prompt engine's by
+    1 - exp(-stroke time / tau_m), which the same recurrence on the prompt run reproduces."""
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=4.0, f1_hz=1.0)
+    tau = 0.08
+    lagged = run(reference, plan, closed_loop=False, tau_m=tau)
+    prompt = run(reference, plan, closed_loop=False)
+    n = min(len(lagged.torque_t), len(prompt.torque_t))
+    stroke_s = np.diff(lagged.torque_t[:n], prepend=0.0)
+    expected = np.empty(n)
+    state = reference.T_loss
+    for i in range(n):
+        state += (prompt.mean_torque_nm[i] - state) * (1 - np.exp(-stroke_s[i] / tau))
+        expected[i] = state
+    late = lagged.torque_t[:n] > 1.0
+    error = lagged.mean_torque_nm[:n][late] - expected[late]
+    swing = np.ptp(prompt.mean_torque_nm[:n][late])
+    assert np.sqrt(np.mean(error**2)) < 0.03 * swing
+    assert np.sqrt(np.mean((lagged.mean_torque_nm[:n] - prompt.mean_torque_nm[:n])[late] ** 2)) > (
+        0.1 * swing
+    )
+
+
+def test_accessory_mode_adds_a_mode_and_is_stable(reference):
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=10.0)
+    plain, belt = run(reference, plan), run(reference, plan, J4=0.03, c14=120.0, d14=0.1)
+    assert np.isfinite(belt.speed_rpm).all()
+    assert np.sqrt(np.mean((belt.speed_rpm - plain.speed_rpm[: len(belt.speed_rpm)]) ** 2)) > 0.5
+
+
+def test_effect_options_parse_and_refuse_clearly():
+    assert parse_effect("gearbox_drag:d3=0.01") == {"d3": 0.01}
+    values = parse_effect("progressive_spring")
+    assert values["c12_2"] == 600.0 and values["knee12"] > 0
+    for text, message in (
+        ("rattle", "unknown mechanism"),
+        ("gearbox_drag:c12=3", "is not k=v"),
+        ("gearbox_drag:d3=x", "not a number"),
+    ):
+        with pytest.raises(ConfigError, match=message):
+            parse_effect(text)
+    with pytest.raises(ConfigError, match="outside"):
+        Effects({"d3": 5.0})
+
+
+def test_simulate_conceals_an_effect_and_refuses_an_unknown_one(tmp_path, capsys):
+    path = tmp_path / "concealed.blf"
+    command = ["simulate", str(path), "--duration", "5", "--amplitudes", "5"]
+    assert dtid([*command, "--effect", "gearbox_drag:d3=0.01"]) == 0
+    assert path.stat().st_size > 0
+    assert dtid([*command, "--force", "--effect", "rattle"]) == 2
+    assert "unknown mechanism 'rattle'" in capsys.readouterr().err
