@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from dtid.identification.model import response as model_response
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
+from dtid.identification.model import response as model_response
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import Objective, split_runs

@@ -22,7 +22,13 @@ import numpy as np
 from dtid.errors import ConfigError
 from dtid.identification.diagnosis.hints import EffectiveValue, effective_values
 from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
-from dtid.identification.diagnosis.refit import Candidate, Refit, Screened, diagnose_mechanisms
+from dtid.identification.diagnosis.refit import (
+    ACCEPT_P,
+    Candidate,
+    Refit,
+    Screened,
+    diagnose_mechanisms,
+)
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import (
     IdentificationReport,
@@ -79,9 +85,13 @@ class Diagnosis:
 
     @property
     def indistinguishable(self) -> tuple[str, ...]:
-        """Mechanisms these data can neither detect nor exclude (at their typical magnitude)."""
+        """Mechanisms these data can neither detect nor exclude: invisible to the screen at
+        their typical magnitude, and, where refitted, not significant."""
+        significant = {c.mechanisms[-1] for c in self.candidates if c.p_value < ACCEPT_P}
         return tuple(
-            s.mechanism for s in self.screened if not s.detectable(self.mismatch.threshold_z)
+            s.mechanism
+            for s in self.screened
+            if not s.detectable(self.mismatch.threshold_z) and s.mechanism not in significant
         )
 
     @property
@@ -116,7 +126,7 @@ class Diagnosis:
         if self.accepted:
             last = self.accepted[-1]
             values = ", ".join(
-                f"{name} = {value:.3g} {_unit(name)}" for name, value in last.parameters().items()
+                f"{name} = {value:.3g}{_unit(name)}" for name, value in last.parameters().items()
             )
             verb = "explains" if len(last.mechanisms) == 1 else "explain"
             text += (
@@ -247,10 +257,11 @@ def amplitude_trend(values: Sequence[EffectiveValue]) -> str:
 
 
 def _unit(name: str) -> str:
+    """' unit' of a mechanism parameter, '' for a dimensionless one."""
     for mechanism in MECHANISMS:
         for spec in mechanism.parameters:
-            if spec.name == name:
-                return spec.unit
+            if spec.name == name and spec.unit != "1":
+                return f" {spec.unit}"
     return ""
 
 

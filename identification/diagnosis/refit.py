@@ -5,19 +5,25 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
 1. **Screen** (one batched simulation). At the identified model, the Jacobian of the model's
    |G_DRV| with respect to the ten free parameters, and each mechanism's effect at the two ends
    of its typical magnitude (:attr:`dtid.simulator.mechanisms.MechanismParameter.typical`; both
-   signs for a signed one), all in units of the recording's scatter (the mismatch map's z). An
-   effect the drivetrain parameters can imitate is projected out: what remains is what only the
-   mechanism can do. Where that stays below the map's own detection threshold (``threshold_z``)
-   even at the top of the typical range, these data cannot detect or exclude the mechanism: it is
-   listed as *indistinguishable* (a uniform torque-sensor gain, for one, scales |G_DRV| as the
-   inertias do). The others are ranked by how much of the residual the mechanism and the
-   drivetrain's linearised compensation of it leave unexplained (a least-squares gain); the best
-   :data:`REFIT_COUNT` detectable ones are refitted, each started from that compensation.
-2. **Refit**. The model with the mechanism added is refitted from the identified values (warm
-   start; the ten parameters of setup 4 free within +-:data:`REFIT_SPAN`, the mechanism's within
-   its bounds) by the search's last stages (Nelder-Mead, then Levenberg-Marquardt,
-   :func:`dtid.identification.search.identify.refine`); the baseline is refitted the same way, so
-   that the comparison credits the mechanism, not the extra polish.
+   signs for a signed one), all in units of the recording's scatter (the mismatch map's z). What
+   the drivetrain parameters can imitate is projected out; what remains is what only the
+   mechanism can do (``visible_z``, its largest |z|). The screen orders the candidates by how
+   much of the residual a mechanism and the drivetrain's linearised compensation of it explain
+   (a least-squares gain), and gives each refit its start. It is local: where the identification
+   has bent its parameters around the missing physics (a gearbox drag's preload closing the DMF
+   play, absorbed as a smaller play), a mechanism can look invisible at the identified model and
+   still explain the data once the parameters move back. So every mechanism is refitted; one
+   the screen finds invisible *and* whose refit gains nothing is listed as indistinguishable:
+   these data neither detect nor exclude it (a uniform torque-sensor gain scales |G_DRV| as the
+   inertias do; a free play's asymmetry is a shift of its centre while no mean torque loads it).
+2. **Refit**. The model with the mechanism added is refitted from the identified values moved
+   by the screen's compensation, the mechanism at the screen's magnitude: a short differential
+   evolution (half its members near that start, half across the box), then the search's last
+   stages (Nelder-Mead, Levenberg-Marquardt, :func:`dtid.identification.search.identify.refine`).
+   The ten parameters of setup 4 are free in the default search box
+   (:func:`dtid.identification.search.parameterization.passenger_car_bounds` around the
+   identified values), the mechanism's within its bounds. The baseline is refitted the same way,
+   so that the comparison credits the mechanism, not the extra search.
 3. **Test**. The improvement is the intervals' own likelihood-ratio statistic
    (:func:`dtid.identification.uncertainty.profile.statistic`: the sandwich form, whose noise
    scale takes the residual's correlation length, i.e. the effective sample size), evaluated on
@@ -25,8 +31,8 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    freedom as the mechanism has parameters. A mechanism is accepted when p < :data:`ACCEPT_P`
    **and** the held-out runs' NRMSE falls. Candidates are ranked by an information criterion, AIC
    in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
-   After the first is accepted, the next best screened candidates are tried on top of it
-   (greedy, at most :data:`MAX_MECHANISMS`), each tested against the model before it.
+   After the first is accepted, the next best candidates are tried on top of it (greedy, at most
+   :data:`MAX_MECHANISMS`), each tested against the model before it.
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
+from scipy import optimize, stats
 
 from dtid.identification.diagnosis.mismatch import MismatchMap
 from dtid.identification.model.response import model_drv_db
@@ -46,6 +52,7 @@ from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
+    passenger_car_bounds,
     theta_from_parameters,
 )
 from dtid.identification.uncertainty.profile import statistic
@@ -64,14 +71,21 @@ MAX_MECHANISMS = 2
 """Most mechanisms accepted together (greedy)."""
 REFIT_COUNT = 10
 """Screened candidates refitted, the best by their linearised gain first."""
-REFIT_SPAN = 0.5
-"""Relative half-width of the drivetrain parameters' box in a refit, around the identified
-values."""
+COMBINED = 2
+"""Candidates tried on top of an accepted one: the best by their own criterion."""
 SCREEN_STEP = 0.02
 """Normalised step of the screen's finite differences (2 % of the box, about 2 % of a value)."""
 TEST_REALIZATIONS = 8
 """Realizations of the model behind the likelihood-ratio test (twice the search's: the test
 compares two optima each chosen on the search's own draws)."""
+GLOBAL_POPSIZE = 10
+"""A refit's differential evolution: members per free parameter."""
+GLOBAL_GENERATIONS = 25
+"""A refit's differential evolution: generations."""
+GLOBAL_NEAR = 0.1
+"""Half of its first population lies this far (normalised, standard deviation) around the
+start, the other half spans the box (a Latin hypercube): a mechanism the identification bent
+its parameters around may need them far from the identified values."""
 REFIT_SETTINGS = SearchSettings(final_evaluations=300, polish_evaluations=300)
 """Budget of each refit's Nelder-Mead and Levenberg-Marquardt stages."""
 
@@ -193,7 +207,8 @@ class Refit:
 
     def __post_init__(self) -> None:
         p = self.parameters
-        self.base = Parameterization.around(p, p.T_loss, p.K, span=REFIT_SPAN).modal_coordinates()
+        box = passenger_car_bounds(p)
+        self.base = Parameterization.around(p, p.T_loss, p.K, bounds=box).modal_coordinates()
         self.start_unit = self.base.unit(
             np.array([[theta_from_parameters(p)[n] for n in THETA_NAMES]])
         )[0]
@@ -252,7 +267,27 @@ class Refit:
         if shift is not None and len(shift):
             base = np.clip(base + shift, 0.0, 1.0)
         start = np.concatenate([base, extra.start_unit()])
-        unit, value = refine(objective, start, self.settings)
+        n_free = len(start)
+        seed = self.settings.seed
+        count = GLOBAL_POPSIZE * n_free
+        rng = np.random.default_rng(seed)
+        near = np.clip(start + GLOBAL_NEAR * rng.standard_normal((count // 2, n_free)), 0, 1)
+        far = stats.qmc.LatinHypercube(n_free, seed=seed).random(count - len(near) - 1)
+        coarse = objective.replacing(realizations=1)
+        result = optimize.differential_evolution(
+            lambda u: coarse(u.T),
+            [(0.0, 1.0)] * n_free,
+            maxiter=GLOBAL_GENERATIONS,
+            seed=seed,
+            vectorized=True,
+            updating="deferred",
+            polish=False,
+            init=np.vstack([start, near, far]),
+            strategy="currenttobest1bin",
+        )
+        pair = np.array([start, result.x])
+        best = pair[int(np.argmin(objective(pair)))]  # on the test's realizations
+        unit, value = refine(objective, best, self.settings)
         return extra.parameters(unit[None])[0], value
 
     def screen(self, found: MismatchMap, row: np.ndarray | None = None) -> list[Screened]:
@@ -275,16 +310,18 @@ class Refit:
         n = len(unit)
         jac = ((curves[:n] - curves[n : 2 * n]) / steps[:, None] / scatter).T
         base = curves[2 * n]
-        usable = np.isfinite(jac).all(axis=1) & np.isfinite(base) & np.isfinite(residual)
-        jac, z = jac[usable], (residual / scatter)[usable]
-        inverse = np.linalg.pinv(jac)
-        projector = np.eye(len(z)) - jac @ inverse
+        usable = np.isfinite(base) & np.isfinite(residual) & (scatter > 0)
+        moved = np.isfinite(jac[usable]).all(axis=0)  # a step that could not idle: left out
+        jac, z = jac[np.ix_(usable, moved)], (residual / scatter)[usable]
+        inverse = np.zeros((n, len(z)))
+        inverse[moved] = np.linalg.pinv(jac)
+        projector = np.eye(len(z)) - jac @ inverse[moved]
         z_free = projector @ z
         total = float(z_free @ z_free) or 1.0
         by_name: dict[str, Screened] = {}
         for (name, value), curve in zip(trials, curves[2 * n + 1 :], strict=True):
             effect = ((curve - base) / scatter)[usable]
-            if not np.isfinite(effect).all():
+            if not (len(effect) and np.isfinite(effect).all()):
                 continue
             left = projector @ (z - effect)  # what the mechanism and the compensation leave
             visible = float(np.max(np.abs(projector @ effect)))
@@ -440,7 +477,7 @@ def diagnose_mechanisms(
     """
     names = list(allowed) if allowed else [m.name for m in MECHANISMS]
     screened = [s for s in screened or refit.screen(found) if s.mechanism in names]
-    chosen = [s for s in screened if s.detectable(found.threshold_z)][:REFIT_COUNT]
+    chosen = screened[:REFIT_COUNT]
     if not chosen:
         return screened, [], []
     neutral = kernel_parameters(refit.parameters.as_array())
@@ -464,6 +501,8 @@ def diagnose_mechanisms(
             break
         accepted.append(best)
         current, current_row = best.mechanisms, best.row
-        pool = [s for s in pool if s.mechanism not in current][: REFIT_COUNT // 2]
+        ranked = [c.mechanisms[-1] for c in sorted(round_, key=lambda c: c.criterion)]
+        pool.sort(key=lambda s: ranked.index(s.mechanism))
+        pool = [s for s in pool if s.mechanism not in current][:COMBINED]
     tried.sort(key=lambda c: c.criterion)
     return screened, tried, accepted

@@ -1,0 +1,179 @@
+"""Diagnosis trial: blind cases of concealed physics, and how often ``dtid diagnose`` names it.
+
+Each case draws a vehicle as the identification trial does (drivetrain within +-40 % of the
+reference, its own idle controller, ECU timing, engine and noise:
+:func:`benchmarks.identification_trial.draw_vehicle`), then, at random, no mechanism (a clean
+case, with probability ``--clean``) or one mechanism of the library with its parameters drawn
+from their typical ranges (:attr:`dtid.simulator.mechanisms.MechanismParameter.typical`; a
+signed parameter gets a random sign). It simulates the paper's test (5, 10 and 2 N*m, 60 s
+chirps) with the mechanism concealed (nothing in the recording but its physics), identifies
+(default search, profiles off) and diagnoses with the whole library, as ``dtid identify`` and
+``dtid diagnose`` do.
+
+Per case it records the concealed mechanism, how much it changes |G_DRV| (the largest change
+over the runs' bins, dB, at the truth: model with and without it on the recorded test), what the
+diagnosis named first, the named mechanism's main parameter against the truth, and the held-out
+NRMSE before and after. The summary gives the issue's figures: among cases whose effect reaches
+1.5 dB, the share named first correctly; clean cases declared adequate; the main parameter
+within 25 %; the held-out NRMSE's fall where an effect was accepted; and the confusion matrix.
+
+    PYTHONPATH=. python benchmarks/diagnosis_trial.py --cases 12 [--first 1] [--clean 0.25]
+
+Writes ``benchmarks/results/diagnosis_trial.json``. A benchmark, not a test: nothing asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.identification_trial import PLAN, draw_truth, draw_vehicle
+from dtid.identification.diagnosis.diagnose import diagnose_report
+from dtid.identification.model.response import model_drv_db
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import run_identification
+from dtid.identification.samples.testdata import from_simulation
+from dtid.simulator.mechanisms import BY_NAME, MECHANISMS, Effects, kernel_parameters
+from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.simulate import simulate
+from dtid.simulator.vehicle_data import VehicleData
+
+RESULTS = Path(__file__).resolve().parent / "results"
+VISIBLE_DB = 1.5
+"""Cases whose effect changes |G_DRV| by at least this somewhere count for the naming rate."""
+
+
+def draw_effect(index: int, clean: float) -> Effects:
+    """No mechanism with probability ``clean``, else one of the library at a typical magnitude."""
+    rng = np.random.default_rng(5000 + index)
+    if rng.random() < clean:
+        return Effects()
+    mechanism = MECHANISMS[int(rng.integers(len(MECHANISMS)))]
+    values = {}
+    for spec in mechanism.parameters:
+        value = float(rng.uniform(*spec.typical))
+        if spec.lower < spec.neutral and rng.random() < 0.5:  # a signed parameter
+            value = 2 * spec.neutral - value
+        values[spec.name] = value
+    return Effects(values)
+
+
+def effect_db(truth: DrivetrainParameters, effects: Effects, test: MeasuredTest) -> float:
+    """Largest change of |G_DRV| over every run's bins that the mechanism makes, dB."""
+    if not effects.mechanisms:
+        return 0.0
+    rows = np.vstack(
+        [kernel_parameters(truth.as_array()), kernel_parameters(truth.as_array(), effects)]
+    )
+    curves = model_drv_db(rows, test.model_test(range(len(test.estimates))))
+    return float(max(np.nanmax(np.abs(c[1] - c[0])) for c in curves))
+
+
+def run_case(index: int, clean: float) -> dict[str, object]:
+    """Simulate, identify and diagnose one case; its figures."""
+    truth, vehicle = draw_truth(index), draw_vehicle(index)
+    effects = draw_effect(index, clean)
+    options = dataclasses.replace(vehicle, effects=effects)
+    data = from_simulation(simulate(truth, PLAN, options, seed=700 + index))
+    engine = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
+    test = MeasuredTest.from_data(f"case {index}", data, 0.25, engine)
+    began = time.perf_counter()
+    report = run_identification([test], reference_parameters(), profile_points=0)
+    identified_s = time.perf_counter() - began
+    diagnosis = diagnose_report(report)
+    concealed = effects.mechanisms[0] if effects.mechanisms else None
+    named = diagnosis.mechanisms[0] if diagnosis.mechanisms else None
+    row: dict[str, object] = {
+        "case": index,
+        "concealed": concealed,
+        "effect": effects.as_dict(),
+        "effect_db": effect_db(truth, effects, test),
+        "adequate": diagnosis.adequate,
+        "named": named,
+        "accepted": list(diagnosis.mechanisms),
+        "indistinguishable": list(diagnosis.indistinguishable),
+        "bands": len(diagnosis.mismatch.bands),
+        "global_p": diagnosis.mismatch.global_p_value,
+        "identify_s": identified_s,
+        "diagnose_s": diagnosis.seconds,
+    }
+    validation = sum(report.identification.validation_nrmse.values())
+    row["validation_before"] = validation
+    if diagnosis.accepted:
+        last = diagnosis.accepted[-1]
+        row["validation_after"] = sum(last.nrmse.get("validation", {}).values())
+        if concealed and named == concealed:
+            main = BY_NAME[concealed].main.name
+            found, true = last.parameters()[main], effects.as_dict()[main]
+            row["main_error"] = found / true - 1
+    return row
+
+
+def summarise(cases: list[dict[str, object]]) -> dict[str, object]:
+    """The issue's figures over the cases."""
+    visible = [c for c in cases if c["concealed"] and c["effect_db"] >= VISIBLE_DB]
+    clean = [c for c in cases if not c["concealed"]]
+    accepted = [c for c in cases if c["named"]]
+    main = [c for c in cases if "main_error" in c]
+    labels = ["none", *(m.name for m in MECHANISMS)]
+    confusion = {
+        truth: {
+            named: sum(
+                1
+                for c in cases
+                if (c["concealed"] or "none") == truth and (c["named"] or "none") == named
+            )
+            for named in labels
+        }
+        for truth in labels
+    }
+    return {
+        "cases": len(cases),
+        "visible": len(visible),
+        "named_first_right": sum(c["named"] == c["concealed"] for c in visible),
+        "clean": len(clean),
+        "clean_adequate": sum(bool(c["adequate"]) for c in clean),
+        "clean_nothing_accepted": sum(not c["named"] for c in clean),
+        "main_within_25": sum(abs(c["main_error"]) <= 0.25 for c in main),  # type: ignore[arg-type]
+        "main_of": len(main),
+        "held_out_fall": [
+            1 - c["validation_after"] / c["validation_before"]
+            for c in accepted  # type: ignore[operator]
+        ],
+        "confusion": {t: {n: k for n, k in row.items() if k} for t, row in confusion.items()},
+    }
+
+
+def main() -> None:
+    """Run the cases and print the summary."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", type=int, default=12)
+    parser.add_argument("--first", type=int, default=1, help="index of the first case")
+    parser.add_argument("--clean", type=float, default=0.25, help="share of clean cases")
+    parser.add_argument("--out", type=Path, default=RESULTS / "diagnosis_trial.json")
+    args = parser.parse_args()
+    began = time.perf_counter()
+    cases = []
+    for index in range(args.first, args.first + args.cases):
+        cases.append(run_case(index, args.clean))
+        print(json.dumps(cases[-1]), flush=True)
+    summary = summarise(cases)
+    print(json.dumps(summary, indent=1))
+    document = {
+        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        "seconds": time.perf_counter() - began,
+        "summary": summary,
+        "cases": cases,
+    }
+    args.out.parent.mkdir(exist_ok=True)
+    args.out.write_text(json.dumps(document, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
