@@ -28,7 +28,9 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    (:func:`dtid.identification.uncertainty.profile.statistic`: the sandwich form, whose noise
    scale takes the residual's correlation length, i.e. the effective sample size), evaluated on
    :data:`TEST_REALIZATIONS` realizations of the model, chi-square with as many degrees of
-   freedom as the mechanism has parameters. A mechanism is accepted when p < :data:`ACCEPT_P`
+   freedom as the mechanism has parameters, on fresh draws of the model (not those the refits
+   chose their optima on), its p-value family-wise over the candidates tested against the same
+   model (Sidak). A mechanism is accepted when p < :data:`ACCEPT_P`
    **and** the held-out runs' NRMSE falls. Candidates are ranked by an information criterion, AIC
    in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
    After the first is accepted, the next best candidates are tried on top of it (greedy, at most
@@ -76,8 +78,10 @@ COMBINED = 2
 SCREEN_STEP = 0.02
 """Normalised step of the screen's finite differences (2 % of the box, about 2 % of a value)."""
 TEST_REALIZATIONS = 8
-"""Realizations of the model behind the likelihood-ratio test (twice the search's: the test
-compares two optima each chosen on the search's own draws)."""
+"""Realizations of the model behind the likelihood-ratio test (twice the search's)."""
+TEST_SEED = 9_100
+"""Seed of the test's realizations: fresh draws, not those the refits chose their optima on
+(an optimum is lucky on its own draws, the more so the more parameters it has)."""
 GLOBAL_POPSIZE = 10
 """A refit's differential evolution: members per free parameter."""
 GLOBAL_GENERATIONS = 25
@@ -138,7 +142,8 @@ class Candidate:
     nrmse
         ``{"fit": {run: value}, "validation": {run: value}}``.
     statistic, p_value
-        The likelihood-ratio statistic against the model it extends and its chi-square p-value.
+        The likelihood-ratio statistic against the model it extends and its chi-square p-value,
+        family-wise over the candidates tested against that model (Sidak).
     criterion
         2 k - statistic (AIC in the statistic's units; below zero it pays for its parameters).
     validation_gain
@@ -229,14 +234,18 @@ class Refit:
         rows: np.ndarray,
         selection: RunSelection | None = None,
         realizations: int | None = None,
+        seed: int | None = None,
     ) -> list[np.ndarray]:
-        """Model |G_DRV| (n, bins) per run of a selection (the identifying runs by default)."""
+        """Model |G_DRV| (n, bins) per run of a selection (the identifying runs by default), on
+        the search's realizations or those given."""
         selection = selection or self.fit
         out = []
         for test, runs in zip(selection.tests, selection.runs, strict=True):
             model_test = test.model_test(runs)
             if realizations is not None:
                 model_test = dataclasses.replace(model_test, realizations=realizations)
+            if seed is not None:
+                model_test = dataclasses.replace(model_test, seed=seed)
             out.extend(model_drv_db(rows, model_test))
         return out
 
@@ -336,18 +345,26 @@ class Refit:
         return sorted(by_name.values(), key=lambda s: -s.gain)
 
     def test(
-        self, mechanisms: tuple[str, ...], row: np.ndarray, before: np.ndarray, k: int
+        self,
+        mechanisms: tuple[str, ...],
+        row: np.ndarray,
+        before: np.ndarray,
+        k: int,
+        tried: int = 1,
     ) -> Candidate:
-        """Step 3: a refitted model against the one it extends (``k`` parameters added)."""
+        """Step 3: a refitted model against the one it extends (``k`` parameters added), one of
+        ``tried`` candidates tested against it (the p-value is family-wise over them, Sidak)."""
         measured = [e.drv_db for e in self.fit.estimates()]
-        curves = self.curves(np.vstack([row, before]), realizations=TEST_REALIZATIONS)
+        curves = self.curves(
+            np.vstack([row, before]), realizations=TEST_REALIZATIONS, seed=TEST_SEED
+        )
         after_db = [c[0] for c in curves]
         before_db = [c[1] for c in curves]
         if not all(np.isfinite(c).all() for c in after_db):
             lam = 0.0
         else:
             lam = statistic(measured, after_db, before_db)
-        p_value = float(stats.chi2.sf(lam, k))
+        p_value = float(-np.expm1(tried * np.log1p(-stats.chi2.sf(lam, k))))
         scores = self.run_nrmse(row)
         previous = self.run_nrmse(before)
         held = sum(scores.get("validation", {}).values())
@@ -494,7 +511,7 @@ def diagnose_mechanisms(
             shift = s.compensation if not current else None
             row, _ = refit.refit(extra, shift)
             k = len(mechanism.parameters)
-            round_.append(refit.test((*current, s.mechanism), row, current_row, k))
+            round_.append(refit.test((*current, s.mechanism), row, current_row, k, len(pool)))
         tried.extend(round_)
         best = min(round_, key=lambda c: c.criterion)
         if not best.accepted:
