@@ -23,3 +23,18 @@ def test_the_equation_table_names_existing_code() -> None:
                 defined = name.split(".")[-1]
                 pattern = rf"(def|class) {defined}\b|^{defined}\b.*=|^    def {defined}\b"
                 assert re.search(pattern, source, re.M), f"{path}: {name} ({row[:40]})"
+
+
+def test_the_diagnosis_page_lists_the_library_as_the_code_has_it() -> None:
+    from dtid.simulator.mechanisms import MECHANISMS
+
+    page = (ROOT / "docs" / "diagnosis.md").read_text()
+    table = page[page.index("## The library") :]
+    table = table[: table.index("\n### ")]
+    rows = {
+        row.split("|")[1].strip(" `"): row for row in table.splitlines() if row.startswith("| `")
+    }
+    assert list(rows) == [m.name for m in MECHANISMS]
+    for mechanism in MECHANISMS:
+        for parameter in mechanism.parameters:
+            assert f"`{parameter.name}`" in rows[mechanism.name], parameter.name
