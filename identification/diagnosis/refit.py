@@ -364,7 +364,8 @@ class Refit:
             lam = 0.0
         else:
             lam = statistic(measured, after_db, before_db)
-        p_value = float(-np.expm1(tried * np.log1p(-stats.chi2.sf(lam, k))))
+        single = float(stats.chi2.sf(lam, k))
+        p_value = 1.0 if single >= 1.0 else float(-np.expm1(tried * np.log1p(-single)))
         scores = self.run_nrmse(row)
         previous = self.run_nrmse(before)
         held = sum(scores.get("validation", {}).values())
