@@ -106,7 +106,9 @@ def run(args: argparse.Namespace) -> int:
             profile_points=args.profile_points,
             progress=_progress,
         )
-        diagnosis = diagnose_report(report, mechanisms=args.mechanisms)
+        diagnosis = diagnose_report(
+            report, mechanisms=args.mechanisms, profile_points=args.profile_points
+        )
     print_diagnosis(diagnosis)
     if args.json:
         write_json(args.json, diagnosis.as_dict())

@@ -66,6 +66,9 @@ class Diagnosis:
         The accepted models in the order accepted (each extends the one before).
     after
         The mismatch map of the last accepted model (None when none was).
+    intervals
+        Profile-likelihood intervals of the accepted mechanisms' parameters (None when not
+        computed).
     """
 
     baseline: Mapping[str, Any]
@@ -77,6 +80,7 @@ class Diagnosis:
     candidates: tuple[Candidate, ...] = ()
     accepted: tuple[Candidate, ...] = ()
     after: MismatchMap | None = None
+    intervals: Mapping[str, Mapping[str, object]] | None = None
 
     @property
     def mechanisms(self) -> tuple[str, ...]:
@@ -218,8 +222,12 @@ class Diagnosis:
                 **{n: drivetrain[n] for n in self.baseline["parameters"] if n in drivetrain},
                 **last.parameters(),
             },
-            "intervals": {},
-            "intervals_note": "not computed for a model with mechanisms in this version",
+            "intervals": dict(self.intervals or {}),
+            **(
+                {}
+                if self.intervals is not None
+                else {"intervals_note": "not computed: give --profile-points N (5-7)"}
+            ),
             "nrmse": {
                 "fit": last.nrmse.get("fit", {}),
                 "validation": last.nrmse.get("validation", {}),
@@ -280,6 +288,7 @@ def diagnose(
     baseline: Mapping[str, Any],
     draws: int = DRAWS,
     mechanisms: Sequence[str] | None = None,
+    profile_points: int = 0,
 ) -> Diagnosis:
     """Diagnose a parameter set against its identification and validation runs.
 
@@ -296,6 +305,8 @@ def diagnose(
         Model recordings per run for the scatter.
     mechanisms
         The mechanisms to consider (default: the whole library; empty: none).
+    profile_points
+        Grid points of the accepted mechanisms' profile intervals (0: none).
     """
     began = time.perf_counter()
     unknown = [m for m in mechanisms or () if m not in BY_NAME]
@@ -309,11 +320,13 @@ def diagnose(
     screened = [s for s in screened if s.mechanism in allowed]
     candidates: list[Candidate] = []
     accepted: list[Candidate] = []
-    after = None
+    after = intervals = None
     if not found.adequate and allowed:
         screened, candidates, accepted = diagnose_mechanisms(refit, found, allowed, screened)
         if accepted:
             after = mismatch_map(accepted[-1].row, selections, draws)
+            if profile_points > 0:
+                intervals = refit.intervals(accepted[-1], profile_points)
     hints = () if found.adequate or accepted else tuple(effective_values(parameters, selections))
     return Diagnosis(
         baseline,
@@ -325,6 +338,7 @@ def diagnose(
         tuple(candidates),
         tuple(accepted),
         after,
+        intervals,
     )
 
 
@@ -332,6 +346,7 @@ def diagnose_report(
     report: IdentificationReport,
     draws: int = DRAWS,
     mechanisms: Sequence[str] | None = None,
+    profile_points: int = 0,
 ) -> Diagnosis:
     """Diagnose an identification (:func:`dtid.workflow.identify`'s report)."""
     if report.fit is None:
@@ -340,7 +355,12 @@ def diagnose_report(
     if report.validation is not None and report.validation.tests:
         selections.append(("validation", report.validation))
     return diagnose(
-        report.identification.parameters, selections, report.as_dict(), draws, mechanisms
+        report.identification.parameters,
+        selections,
+        report.as_dict(),
+        draws,
+        mechanisms,
+        profile_points,
     )
 
 
@@ -350,6 +370,7 @@ def diagnose_document(
     identify_amplitudes: Sequence[float] | None = None,
     draws: int = DRAWS,
     mechanisms: Sequence[str] | None = None,
+    profile_points: int = 0,
 ) -> Diagnosis:
     """Diagnose an identification JSON of ``dtid identify`` against the recordings it came from.
 
@@ -391,4 +412,4 @@ def diagnose_document(
             )
         if selection.tests:
             selections.append((role, with_variation(selection, variations)))
-    return diagnose(parameters, selections, document, draws, mechanisms)
+    return diagnose(parameters, selections, document, draws, mechanisms, profile_points)

@@ -57,7 +57,7 @@ from dtid.identification.search.parameterization import (
     passenger_car_bounds,
     theta_from_parameters,
 )
-from dtid.identification.uncertainty.profile import statistic
+from dtid.identification.uncertainty.profile import profile, statistic
 from dtid.simulator.mechanisms import (
     BY_NAME,
     EXTRA_INDEX,
@@ -299,6 +299,29 @@ class Refit:
         unit, value = refine(objective, best, self.settings)
         return extra.parameters(unit[None])[0], value
 
+    def intervals(self, candidate: Candidate, points: int) -> dict[str, dict[str, object]]:
+        """Profile-likelihood 95 % intervals and verdicts of an accepted candidate's mechanism
+        parameters (:func:`dtid.identification.uncertainty.profile.profile`, ``points`` grid
+        values each), the rest re-optimised at every point."""
+        mechanisms = tuple(BY_NAME[m] for m in candidate.mechanisms)
+        extra = Extra(self.base, candidate.row, mechanisms)
+        objective = self.objective(extra)
+        measured = [e.drv_db for e in self.fit.estimates()]
+        unit = extra.unit_of(candidate.row)
+        out = {}
+        for name in extra.names:
+            found = profile(
+                objective,
+                measured,
+                name,
+                unit,
+                points=points,
+                search_objective=objective.replacing(realizations=1),
+            )
+            lower, upper = found.interval
+            out[name] = {"lower": lower, "upper": upper, "verdict": found.verdict}
+        return out
+
     def screen(self, found: MismatchMap, row: np.ndarray | None = None) -> list[Screened]:
         """Step 1 (see the module notes), at ``row`` (the identified model by default)."""
         row = kernel_parameters(self.parameters.as_array()) if row is None else row
@@ -430,6 +453,18 @@ class Extra:
             columns = [EXTRA_INDEX[n] for n in self.names]
             out[:, columns] = lower + unit[:, n_base:] * (upper - lower)
         return out
+
+    def bounds_of(self, name: str) -> tuple[float, float]:
+        """(lower, upper) of a searched parameter, SI units."""
+        if name in self.names:
+            spec = next(p for m in self.mechanisms for p in m.parameters if p.name == name)
+            return spec.lower, spec.upper
+        return self.base.bounds_of(name)
+
+    def unit_of(self, row: np.ndarray) -> np.ndarray:
+        """The normalised free values of a kernel row."""
+        base = self.base.unit(np.array([theta_of(row)]))[0]
+        return np.concatenate([base, dataclasses.replace(self, row=row).start_unit()])
 
     def start_unit(self) -> np.ndarray:
         """The mechanisms' values in ``row``, normalised."""
