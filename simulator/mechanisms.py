@@ -84,6 +84,21 @@ class Mechanism:
         """Its parameters' names."""
         return tuple(p.name for p in self.parameters)
 
+    def search_bounds(self) -> list[tuple[float, float]]:
+        """Where a refit searches each parameter, SI units, within its bounds: the main
+        parameter up to twice the typical reach from neutral (both sides for a signed one), the
+        others from half to twice their typical range. A search over the whole physical bounds
+        spends its population on magnitudes no vehicle has (a quadratic damping of 30 where 1.5
+        is typical)."""
+        main = self.main
+        reach = 2.0 * max(abs(t - main.neutral) for t in main.typical)
+        out = [(max(main.lower, main.neutral - reach), min(main.upper, main.neutral + reach))]
+        for spec in self.parameters[1:]:
+            out.append(
+                (max(spec.lower, 0.5 * spec.typical[0]), min(spec.upper, 2.0 * spec.typical[1]))
+            )
+        return out
+
 
 def _p(
     name: str,

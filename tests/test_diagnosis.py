@@ -224,7 +224,7 @@ def dragged(tmp_path_factory) -> Path:
 
 @pytest.mark.slow
 def test_a_concealed_gearbox_drag_is_named_refitted_and_improves_the_held_out_run(
-    dragged, reference
+    dragged, reference, tmp_path
 ):
     """The model without the drag (the truth's drivetrain) misses the recording; the drag is
     refitted from it and accepted, its coefficient within 25 %, the held-out 2 N*m run fits
@@ -251,3 +251,6 @@ def test_a_concealed_gearbox_drag_is_named_refitted_and_improves_the_held_out_ru
     interval = result["verdict"]["intervals"]["d3"]
     assert interval["lower"] is not None and interval["lower"] <= 0.02, interval
     assert interval["upper"] is None or interval["upper"] >= 0.02, interval
+    from dtid.identification.diagnosis.figure import plot_mismatch
+
+    assert plot_mismatch(diagnosis, tmp_path / "drag.png").stat().st_size > 10_000

@@ -15,11 +15,13 @@ if TYPE_CHECKING:
 
 
 def mismatch_figure(diagnosis: Diagnosis, title: str = "") -> Figure:
-    """A diagnosis's FRFs and mismatch map.
+    """A diagnosis's FRFs and mismatch maps.
 
-    Top: measured (thin) and model (thick) |G_DRV| of every run (validation dashed). Bottom: the
-    mismatch map, each run's standardised residual z = (measured - model) / scatter over
-    frequency at its amplitude, with the family-wise threshold and the significant bands shaded.
+    Top: measured (thin), identified model (thick) and, when a mechanism was accepted, the
+    augmented model's (dotted) |G_DRV| of every run (validation dashed). Below: the mismatch map
+    of the identified model, each run's standardised residual z = (measured - model) / scatter
+    over frequency at its amplitude, with the family-wise threshold and the significant bands
+    shaded; and, with an accepted mechanism, the same map of the augmented model.
 
     Parameters
     ----------
@@ -30,28 +32,41 @@ def mismatch_figure(diagnosis: Diagnosis, title: str = "") -> Figure:
     """
     from matplotlib import colormaps
 
+    maps = [("identified model", diagnosis.mismatch)]
+    if diagnosis.after is not None:
+        maps.append((f"with {' + '.join(diagnosis.mechanisms)}", diagnosis.after))
     residuals = diagnosis.mismatch.residuals
-    figure = new_figure(figsize=(8, 7))
-    top, bottom = figure.subplots(2, 1, sharex=True)
+    figure = new_figure(figsize=(8, 4 + 3 * len(maps)))
+    top, *rows = figure.subplots(1 + len(maps), 1, sharex=True)
     colours = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(residuals), 1)))
-    for residual, colour in zip(residuals, colours, strict=True):
+    for k, residual in enumerate(residuals):
         style = "--" if residual.role == "validation" else "-"
         label = f"{residual.amplitude_nm:g} N*m ({residual.role})"
-        f = residual.frequency_hz
+        f, colour = residual.frequency_hz, colours[k]
         top.plot(f, residual.measured_db, color=colour, linewidth=0.8, alpha=0.7)
         top.plot(f, residual.model_db, color=colour, linewidth=2, linestyle=style, label=label)
-        bottom.plot(f, residual.z, color=colour, linewidth=1.2, linestyle=style, label=label)
-    for band in diagnosis.mismatch.bands:
-        bottom.axvspan(band.f_lo_hz, band.f_hi_hz, color="tab:red", alpha=0.15)
-    threshold = diagnosis.mismatch.threshold_z
-    for level in (threshold, -threshold):
-        bottom.axhline(level, color="tab:red", linewidth=1, linestyle=":")
+        if diagnosis.after is not None:
+            augmented = diagnosis.after.residuals[k].model_db
+            top.plot(f, augmented, color=colour, linewidth=1.5, linestyle=":")
+    for axis, (name, found) in zip(rows, maps, strict=True):
+        for k, residual in enumerate(found.residuals):
+            style = "--" if residual.role == "validation" else "-"
+            axis.plot(
+                residual.frequency_hz, residual.z, color=colours[k], linewidth=1.2, linestyle=style
+            )
+        for band in found.bands:
+            axis.axvspan(band.f_lo_hz, band.f_hi_hz, color="tab:red", alpha=0.15)
+        for level in (found.threshold_z, -found.threshold_z):
+            axis.axhline(level, color="tab:red", linewidth=1, linestyle=":")
+        axis.set_ylabel(f"z, {name}")
     top.set_ylabel("|G_DRV| / dB re 1 (rad/s)/(N*m)")
-    top.set_title(title or ("adequate" if diagnosis.adequate else "mismatch located"))
+    heading = "adequate" if diagnosis.adequate else "mismatch located"
+    if diagnosis.mechanisms:
+        heading += f"; explained by {' + '.join(diagnosis.mechanisms)} (dotted)"
+    top.set_title(title or heading)
     top.legend(fontsize="small")
-    bottom.set_xlabel("frequency / Hz")
-    bottom.set_ylabel("z = (measured - model) / scatter")
-    for axis in (top, bottom):
+    rows[-1].set_xlabel("frequency / Hz")
+    for axis in (top, *rows):
         axis.grid(True, alpha=0.3)
     figure.tight_layout()
     return figure

@@ -22,8 +22,10 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    stages (Nelder-Mead, Levenberg-Marquardt, :func:`dtid.identification.search.identify.refine`).
    The ten parameters of setup 4 are free in the default search box
    (:func:`dtid.identification.search.parameterization.passenger_car_bounds` around the
-   identified values), the mechanism's within its bounds. The baseline is refitted the same way,
-   so that the comparison credits the mechanism, not the extra search.
+   identified values), the mechanism's within its search bounds
+   (:meth:`dtid.simulator.mechanisms.Mechanism.search_bounds`: about twice its typical
+   magnitude). The baseline is refitted the same way, so that the comparison credits the
+   mechanism, not the extra search.
 3. **Test**. The improvement is the intervals' own likelihood-ratio statistic
    (:func:`dtid.identification.uncertainty.profile.statistic`: the sandwich form, whose noise
    scale takes the residual's correlation length, i.e. the effective sample size), evaluated on
@@ -439,8 +441,8 @@ class Extra:
         return (*self.base.free, *self.names)
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        specs = [p for m in self.mechanisms for p in m.parameters]
-        return np.array([p.lower for p in specs]), np.array([p.upper for p in specs])
+        bounds = [b for m in self.mechanisms for b in m.search_bounds()]
+        return np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
 
     def parameters(self, unit: np.ndarray) -> np.ndarray:
         """Kernel rows (n, KERNEL_WIDTH) from normalised values (n, n_free)."""
@@ -457,8 +459,9 @@ class Extra:
     def bounds_of(self, name: str) -> tuple[float, float]:
         """(lower, upper) of a searched parameter, SI units."""
         if name in self.names:
-            spec = next(p for m in self.mechanisms for p in m.parameters if p.name == name)
-            return spec.lower, spec.upper
+            lower, upper = self._bounds()
+            i = self.names.index(name)
+            return float(lower[i]), float(upper[i])
         return self.base.bounds_of(name)
 
     def unit_of(self, row: np.ndarray) -> np.ndarray:
