@@ -90,12 +90,20 @@ class Diagnosis:
     @property
     def indistinguishable(self) -> tuple[str, ...]:
         """Mechanisms these data can neither detect nor exclude: invisible to the screen at
-        their typical magnitude, and, where refitted, not significant."""
+        their typical magnitude at a model that explains the recordings (the identified one
+        when adequate, else the accepted one), and, where refitted, not significant. Empty when
+        a mismatch is left unexplained: the screen is local, and at a model bent around missing
+        physics it cannot tell what the data would show."""
+        if not (self.adequate or self.accepted):
+            return ()
         significant = {c.mechanisms[-1] for c in self.candidates if c.p_value < ACCEPT_P}
+        threshold = (self.after or self.mismatch).threshold_z
         return tuple(
             s.mechanism
             for s in self.screened
-            if not s.detectable(self.mismatch.threshold_z) and s.mechanism not in significant
+            if not s.detectable(threshold)
+            and s.mechanism not in significant
+            and s.mechanism not in self.mechanisms
         )
 
     @property
@@ -325,6 +333,8 @@ def diagnose(
         screened, candidates, accepted = diagnose_mechanisms(refit, found, allowed, screened)
         if accepted:
             after = mismatch_map(accepted[-1].row, selections, draws)
+            rescreened = {x.mechanism: x for x in refit.screen(after, accepted[-1].row)}
+            screened = [rescreened.get(x.mechanism, x) for x in screened]
             if profile_points > 0:
                 intervals = refit.intervals(accepted[-1], profile_points)
     hints = () if found.adequate or accepted else tuple(effective_values(parameters, selections))

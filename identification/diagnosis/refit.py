@@ -117,8 +117,8 @@ class Screened:
     start
         The magnitude of its main parameter the screen preferred, SI units.
     ladder
-        Every magnitude the screen tried (SI units) with the change of the drivetrain's
-        normalised free values that best accompanies it (linearised): where refits start.
+        Every magnitude the screen tried (SI units) with the drivetrain's normalised free values
+        that best accompany it (linearised from the screened model): where refits start.
     """
 
     mechanism: str
@@ -287,13 +287,14 @@ class Refit:
         """Refit ``extra``'s model with its mechanisms free; the kernel row reached and eq. (17)
         there.
 
-        Starts: ``extra``'s row; each ``(row, shift)`` of the ladder (a row with the mechanism
-        at a magnitude, the drivetrain's normalised values moved by ``shift``), first polished in
+        Starts: ``extra``'s row; each ``(row, target)`` of the ladder (a row with the mechanism
+        at a magnitude, the drivetrain's normalised values set to ``target`` where given), first
+        polished in
         the drivetrain's values alone with the mechanism held (continuation: the parameters the
         identification bent around the missing physics move back); the identification's own
         start values (the prior's, J_sum from the FRFs) with the mechanism at the ladder's first
         magnitude; then a differential evolution seeded with all of them, half its other members
-        near the model before, half across the box. The best on the test's realizations is
+        near the best of them, half across the box. The best on the test's realizations is
         refined.
         """
         objective = self.objective(extra)
@@ -306,10 +307,10 @@ class Refit:
             for row, _ in ladder[:1] or [(extra.row, None)]:
                 mechanism = np.clip(extra.unit_of(row)[n_base:], 0.0, 1.0)
                 starts.append(np.concatenate([np.clip(at_prior, 0.0, 1.0), mechanism]))
-        for row, shift in ladder:
+        for row, target in ladder:
             unit = extra.unit_of(row)
-            if shift is not None and len(shift):
-                unit[:n_base] = np.clip(unit[:n_base] + shift, 0.0, 1.0)
+            if target is not None and len(target):
+                unit[:n_base] = target
             mechanism = np.clip(unit[n_base:], 0.0, 1.0)
             result = optimize.minimize(
                 lambda b, m=mechanism: float(held(np.concatenate([b, m])[None])[0]),
@@ -323,9 +324,10 @@ class Refit:
         seed = self.settings.seed
         count = max(GLOBAL_POPSIZE * n_free, len(starts) + 10)
         rng = np.random.default_rng(seed)
-        near = np.clip(start + GLOBAL_NEAR * rng.standard_normal((count // 2, n_free)), 0, 1)
-        far = stats.qmc.LatinHypercube(n_free, seed=seed).random(count - len(near) - len(starts))
         coarse = objective.replacing(realizations=1)
+        centre = starts[int(np.argmin(coarse(np.array(starts))))]  # the best start
+        near = np.clip(centre + GLOBAL_NEAR * rng.standard_normal((count // 2, n_free)), 0, 1)
+        far = stats.qmc.LatinHypercube(n_free, seed=seed).random(count - len(near) - len(starts))
         result = optimize.differential_evolution(
             lambda u: coarse(u.T),
             [(0.0, 1.0)] * n_free,
@@ -371,7 +373,7 @@ class Refit:
         scatter = np.concatenate([r.scatter_db for r in found.residuals if r.role == "fit"])
         residual = np.concatenate([r.residual_db for r in found.residuals if r.role == "fit"])
         extra = Extra(self.base, row, ())
-        unit = self.start_unit
+        unit = extra.unit_of(row)
         steps = np.clip(unit + SCREEN_STEP, 0, 1) - np.clip(unit - SCREEN_STEP, 0, 1)
         up = np.clip(unit + np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
         down = np.clip(unit - np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
@@ -401,7 +403,7 @@ class Refit:
             left = projector @ (z - effect)  # what the mechanism and the compensation leave
             visible = float(np.max(np.abs(projector @ effect)))
             gain = max(0.0, 1.0 - float(left @ left) / total)
-            compensation = np.clip(unit + inverse @ (z - effect), 0, 1) - unit
+            compensation = np.clip(unit + inverse @ (z - effect), 0, 1)
             old = by_name.get(name) or Screened(name, 0.0, -1.0, value)
             by_name[name] = Screened(
                 name,
@@ -591,8 +593,8 @@ def diagnose_mechanisms(
             mechanisms = tuple(BY_NAME[m] for m in (*current, s.mechanism))
             extra = Extra(refit.base, current_row, mechanisms)  # from the model before, neutral
             ladder = [
-                (_with(current_row, mechanism, value), None if current else shift)
-                for value, shift in s.ladder
+                (_with(current_row, mechanism, value), None if current else target)
+                for value, target in s.ladder
             ]
             row, _ = refit.refit(extra, ladder)
             k = len(mechanism.parameters)
