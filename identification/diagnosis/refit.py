@@ -13,9 +13,10 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    has bent its parameters around the missing physics (a gearbox drag's preload closing the DMF
    play, absorbed as a smaller play), a mechanism can look invisible at the identified model and
    still explain the data once the parameters move back. So every mechanism is refitted; one
-   the screen finds invisible *and* whose refit gains nothing is listed as indistinguishable:
-   these data neither detect nor exclude it (a uniform torque-sensor gain scales |G_DRV| as the
-   inertias do; a free play's asymmetry is a shift of its centre while no mean torque loads it).
+   the screen finds invisible at a model that explains the data *and* whose refit gains nothing
+   is listed as indistinguishable (:attr:`dtid.identification.diagnosis.diagnose.Diagnosis.
+   indistinguishable`): a uniform torque-sensor gain scales |G_DRV| as the inertias do; a free
+   play's asymmetry is a shift of its centre while no mean torque loads it.
 2. **Refit**. The model with the mechanism added is refitted from the identified values moved
    by the screen's compensation, the mechanism at the screen's magnitude: a short differential
    evolution (half its members near that start, half across the box), then the search's last
