@@ -34,7 +34,8 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    freedom as the mechanism has parameters, on fresh draws of the model (not those the refits
    chose their optima on), its p-value family-wise over the candidates tested against the same
    model (Sidak). A mechanism is accepted when p < :data:`ACCEPT_P`
-   **and** the held-out runs' NRMSE falls. Candidates are ranked by an information criterion, AIC
+   **and** the held-out runs' NRMSE falls below both the model it extends and the identified
+   model's. Candidates are ranked by an information criterion, AIC
    in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
    After the first is accepted, the next best candidates are tried on top of it (greedy, at most
    :data:`MAX_MECHANISMS`), each tested against the model before it.
@@ -157,7 +158,9 @@ class Candidate:
         Relative fall of the held-out runs' summed NRMSE against the model it extends (NaN
         without held-out runs).
     accepted
-        p < :data:`ACCEPT_P` and the held-out NRMSE fell.
+        p < :data:`ACCEPT_P` and the held-out NRMSE fell, below both the model it extends and
+        the identified model (a refitted baseline can fit the held-out runs worse than the
+        identification did).
     """
 
     mechanisms: tuple[str, ...]
@@ -438,10 +441,15 @@ class Refit:
         single = float(stats.chi2.sf(lam, k))
         p_value = 1.0 if single >= 1.0 else float(-np.expm1(tried * np.log1p(-single)))
         scores = self.run_nrmse(row)
-        previous = self.run_nrmse(before)
         held = sum(scores.get("validation", {}).values())
-        held_before = sum(previous.get("validation", {}).values())
+        held_before = sum(self.run_nrmse(before).get("validation", {}).values())
+        held_identified = sum(
+            self.run_nrmse(kernel_parameters(self.parameters.as_array()))
+            .get("validation", {})
+            .values()
+        )
         gain = 1.0 - held / held_before if held_before > 0 else float("nan")
+        better = np.isnan(gain) or (gain > 0 and held < held_identified)
         return Candidate(
             mechanisms,
             row,
@@ -451,7 +459,7 @@ class Refit:
             p_value,
             float(2 * k - lam),
             float(gain),
-            bool(p_value < ACCEPT_P and (np.isnan(gain) or gain > 0)),
+            bool(p_value < ACCEPT_P and better),
         )
 
 
