@@ -18,6 +18,9 @@ NRMSE before and after. The summary gives the issue's figures: among cases whose
 within 25 %; the held-out NRMSE's fall where an effect was accepted; and the confusion matrix.
 
     PYTHONPATH=. python benchmarks/diagnosis_trial.py --cases 12 [--first 1] [--clean 0.25]
+    PYTHONPATH=. python benchmarks/diagnosis_trial.py --from-log run1.log run2.log  # summary
+
+A recording the identification refuses (its FRF too incoherent, say) is recorded as refused.
 
 Writes ``benchmarks/results/diagnosis_trial.json``. A benchmark, not a test: nothing asserted.
 """
@@ -34,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.identification_trial import PLAN, draw_truth, draw_vehicle
+from dtid.errors import AnalysisError
 from dtid.identification.diagnosis.diagnose import diagnose_report
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
@@ -83,11 +87,20 @@ def run_case(index: int, clean: float) -> dict[str, object]:
     data = from_simulation(simulate(truth, PLAN, options, seed=700 + index))
     engine = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
     test = MeasuredTest.from_data(f"case {index}", data, 0.25, engine)
+    concealed = effects.mechanisms[0] if effects.mechanisms else None
     began = time.perf_counter()
-    report = run_identification([test], reference_parameters(), profile_points=0)
+    try:
+        report = run_identification([test], reference_parameters(), profile_points=0)
+    except AnalysisError as error:  # the product refuses the recording: a result too
+        return {
+            "case": index,
+            "concealed": concealed,
+            "effect": effects.as_dict(),
+            "effect_db": effect_db(truth, effects, test),
+            "refused": str(error),
+        }
     identified_s = time.perf_counter() - began
     diagnosis = diagnose_report(report)
-    concealed = effects.mechanisms[0] if effects.mechanisms else None
     named = diagnosis.mechanisms[0] if diagnosis.mechanisms else None
     row: dict[str, object] = {
         "case": index,
@@ -117,6 +130,8 @@ def run_case(index: int, clean: float) -> dict[str, object]:
 
 def summarise(cases: list[dict[str, object]]) -> dict[str, object]:
     """The issue's figures over the cases."""
+    refused = [c for c in cases if "refused" in c]
+    cases = [c for c in cases if "refused" not in c]
     visible = [c for c in cases if c["concealed"] and c["effect_db"] >= VISIBLE_DB]
     clean = [c for c in cases if not c["concealed"]]
     accepted = [c for c in cases if c["named"]]
@@ -135,6 +150,7 @@ def summarise(cases: list[dict[str, object]]) -> dict[str, object]:
     }
     return {
         "cases": len(cases),
+        "refused": [(c["case"], c["concealed"]) for c in refused],
         "visible": len(visible),
         "named_first_right": sum(c["named"] == c["concealed"] for c in visible),
         "clean": len(clean),
@@ -150,6 +166,10 @@ def summarise(cases: list[dict[str, object]]) -> dict[str, object]:
     }
 
 
+def _is_case(line: str) -> bool:
+    return line.startswith('{"case"')
+
+
 def main() -> None:
     """Run the cases and print the summary."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -157,10 +177,21 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=1, help="index of the first case")
     parser.add_argument("--clean", type=float, default=0.25, help="share of clean cases")
     parser.add_argument("--out", type=Path, default=RESULTS / "diagnosis_trial.json")
+    parser.add_argument(
+        "--from-log",
+        type=Path,
+        nargs="+",
+        metavar="LOG",
+        help="summarise the case rows earlier runs printed instead of running cases",
+    )
     args = parser.parse_args()
     began = time.perf_counter()
     cases = []
-    for index in range(args.first, args.first + args.cases):
+    if args.from_log:
+        rows = [line for log in args.from_log for line in log.read_text().splitlines()]
+        found = {row["case"]: row for row in map(json.loads, filter(_is_case, rows))}
+        cases = [found[k] for k in sorted(found)]
+    for index in range(args.first, args.first + args.cases) if not args.from_log else ():
         cases.append(run_case(index, args.clean))
         print(json.dumps(cases[-1]), flush=True)
     summary = summarise(cases)
