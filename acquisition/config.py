@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.recorder import SUFFIXES
 from dtid.errors import ConfigError
 
 
@@ -91,7 +92,8 @@ class OutputConfig:
     directory
         One sub-directory per test session is made here, holding the raw log and the results.
     log_format
-        Extension of the raw CAN log: ``blf`` (default), ``asc`` or ``log`` (candump).
+        Extension of the raw CAN log: ``blf`` (default), ``asc``, ``log`` (candump) or ``mf4``
+        (ASAM MDF 4, written from a crash-safe BLF journal when the session ends).
     flush_period_s
         Longest time (wall) a received frame may stay unwritten in the log, s.
     """
@@ -226,9 +228,11 @@ def _check(config: AcquisitionConfig) -> None:
             value = getattr(getattr(config, section), name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"[{section}] {name} must be > 0, got {value}")
-    if config.output.log_format not in ("blf", "asc", "log"):
+    formats = [suffix[1:] for suffix in SUFFIXES]
+    if config.output.log_format not in formats:
         raise ConfigError(
-            f"[output] log_format must be 'blf', 'asc' or 'log', got {config.output.log_format!r}"
+            f"[output] log_format must be one of {', '.join(map(repr, formats))}, got "
+            f"{config.output.log_format!r}"
         )
     test = config.test
     if not test.amplitudes_nm:

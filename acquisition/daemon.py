@@ -48,6 +48,7 @@ from dtid.acquisition.clock import BusClock
 from dtid.acquisition.config import AcquisitionConfig
 from dtid.acquisition.framepath import FramePath
 from dtid.acquisition.health import EchoFilter
+from dtid.acquisition.metadata import session_metadata
 from dtid.acquisition.recorder import Recorder, new_session_directory
 from dtid.acquisition.safety import SafetyMonitor
 from dtid.acquisition.sequence import ZERO_REQUESTS, Phase, RequestSender, ToolFrames, phases
@@ -163,8 +164,24 @@ class Daemon:
                 raise
             cleanup.callback(server.close)
             log_path = session_dir / f"{session_dir.name}.{config.output.log_format}"
+            metadata = session_metadata(
+                session=session_dir.name,
+                started_s=clock.start_wall_s,
+                source="dtid acquire",
+                interface=interface,
+                plan=plan.as_dict(),
+                bus={
+                    "interface": config.bus.interface,
+                    "channel": config.bus.channel,
+                    "time_factor": config.bus.time_factor,
+                },
+            )
             recorder = Recorder(
-                log_path, clock.start_wall_s, config.output.flush_period_s, config.bus.channel
+                log_path,
+                clock.start_wall_s,
+                config.output.flush_period_s,
+                config.bus.channel,
+                metadata,
             )
             cleanup.callback(recorder.close)
             self._recorder = recorder

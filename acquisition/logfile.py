@@ -13,6 +13,15 @@ Supported formats and what they preserve of the frame timestamps (measured with 
     Times relative to the first frame with 1 us resolution; the first frame reads back at 0 s.
 ``.log`` (Linux candump -L)
     Absolute times with 1 us resolution.
+``.mf4`` (ASAM MDF 4, as INCA, CANape and Vector loggers record; python-can through asammdf)
+    Times relative to the file's start time as 64-bit floats: exact for a recording written
+    here (:mod:`dtid.acquisition.mf4`), absolute. The session's metadata travels in the header.
+``.trc`` (PEAK PCAN trace, versions 1.x and 2.x)
+    Times relative to a start time in the header, in ms with 1 us resolution.
+``.csv`` (python-can's CSV: timestamp, arbitration_id, extended, remote, error, dlc, data)
+    Times as written, absolute.
+
+The candump and CSV formats do not keep the direction of a frame (``is_rx``); the others do.
 
 Decoding makes times relative to the first frame, so an absolute offset is harmless.
 """
@@ -27,6 +36,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from operator import attrgetter
 from pathlib import Path
+from typing import Any
 
 import can
 from can.io.blf import (
@@ -39,12 +49,26 @@ from can.io.blf import (
     BLFParseError,
 )
 
+from dtid.acquisition.metadata import sidecar_path, with_integrity, write_sidecar
+from dtid.acquisition.mf4 import BulkMF4Writer, read_mf4
 from dtid.errors import RecordingError
 
 logger = logging.getLogger(__name__)
 
-_WRITERS = {".asc": can.ASCWriter, ".blf": can.BLFWriter, ".log": can.CanutilsLogWriter}
-_TEXT_READERS = {".asc": can.ASCReader, ".log": can.CanutilsLogReader}
+_WRITERS = {
+    ".asc": can.ASCWriter,
+    ".blf": can.BLFWriter,
+    ".csv": can.CSVWriter,
+    ".log": can.CanutilsLogWriter,
+    ".mf4": BulkMF4Writer,
+    ".trc": can.TRCWriter,
+}
+_TEXT_READERS = {
+    ".asc": can.ASCReader,
+    ".csv": can.CSVReader,
+    ".log": can.CanutilsLogReader,
+    ".trc": can.TRCReader,
+}
 #: Suffixes of the recording formats read and written.
 SUPPORTED_SUFFIXES: tuple[str, ...] = tuple(sorted(_WRITERS))
 
@@ -71,7 +95,11 @@ def _suffix(path: Path) -> str:
 
 
 def write_log(
-    path: str | os.PathLike[str], messages: Iterable[can.Message], *, overwrite: bool = False
+    path: str | os.PathLike[str],
+    messages: Iterable[can.Message],
+    *,
+    overwrite: bool = False,
+    metadata: dict[str, Any] | None = None,
 ) -> int:
     """Write CAN frames to a recording file.
 
@@ -83,11 +111,16 @@ def write_log(
     Parameters
     ----------
     path : str or os.PathLike
-        The file; its suffix (``.blf``, ``.asc`` or ``.log``) selects the format.
+        The file; its suffix (one of :data:`SUPPORTED_SUFFIXES`) selects the format.
     messages : Iterable[can.Message]
         The frames, timestamps in s.
     overwrite : bool, optional
         Replace an existing file. Default False.
+    metadata : dict, optional
+        The session's metadata (:mod:`dtid.acquisition.metadata`), its ``integrity`` set to the
+        frames written: in the header of an .mf4 file, in the sidecar ``<path>.json`` of the
+        others. Without it, a sidecar left by an
+        overwritten recording is removed (it described another recording).
 
     Returns
     -------
@@ -105,6 +138,8 @@ def write_log(
     frames = sorted(messages, key=attrgetter("timestamp"))
     if not frames:
         raise RecordingError(f"no CAN frames to write to {path}")
+    if metadata is not None:
+        metadata = with_integrity(metadata, len(frames), 0, True, None)
     reserved = False
     if not overwrite:
         try:
@@ -122,11 +157,21 @@ def write_log(
     temporary = path.with_name(f".{path.name}.{os.getpid()}.partial")
     complete = False
     try:
-        with _WRITERS[suffix](temporary) as writer:
+        if suffix == ".mf4":
+            writer = BulkMF4Writer(temporary, frames[0].timestamp, metadata)
+        else:
+            writer = _WRITERS[suffix](temporary)
+        with writer:
             for frame in frames:
+                if type(frame.timestamp) is not float:  # python-can's CSV writes its repr
+                    frame.timestamp = float(frame.timestamp)
                 writer.on_message_received(frame)
         temporary.replace(path)
         complete = True
+        if metadata is not None and suffix != ".mf4":
+            write_sidecar(path, metadata)
+        else:
+            sidecar_path(path).unlink(missing_ok=True)
     except OSError as error:
         raise RecordingError(f"cannot write recording {path}: {error.strerror or error}") from error
     finally:
@@ -223,12 +268,13 @@ def read_log_checked(path: str | os.PathLike[str]) -> tuple[list[can.Message], I
     complete one. A damaged BLF container (one byte wrong breaks its compression) is skipped and
     the containers after it are read; a damaged line of a text log is skipped and the lines
     after it are read. Each is logged as a warning naming where it was, the frames lost and the
-    time span.
+    time span. An .mf4 file is read whole or refused: MDF 4 writers complete the file when the
+    recording ends, and asammdf reads no part of a damaged one.
 
     Parameters
     ----------
     path : str or os.PathLike
-        The file; its suffix (``.blf``, ``.asc`` or ``.log``) selects the format.
+        The file; its suffix (one of :data:`SUPPORTED_SUFFIXES`) selects the format.
 
     Returns
     -------
@@ -251,7 +297,12 @@ def read_log_checked(path: str | os.PathLike[str]) -> tuple[list[can.Message], I
     if path.is_dir():
         raise RecordingError(f"recording {path} is a directory, not a {suffix} file")
     try:
-        frames, integrity = _read_blf(path) if suffix == ".blf" else _read_text(path, suffix)
+        if suffix == ".blf":
+            frames, integrity = _read_blf(path)
+        elif suffix == ".mf4":
+            frames, integrity = read_mf4(path)[0], Integrity()
+        else:
+            frames, integrity = _read_text(path, suffix)
     except RecordingError:
         raise
     except OSError as error:
@@ -434,6 +485,10 @@ def _frame_lines(lines: list[str], suffix: str) -> list[int]:
     """Indices of the lines that should each hold one frame."""
     if suffix == ".log":
         return [i for i, line in enumerate(lines) if line.strip()]
+    if suffix == ".trc":  # comments and the header start with ';'
+        return [i for i, line in enumerate(lines) if line.strip() and line.lstrip()[0] != ";"]
+    if suffix == ".csv":  # a header line of column names, then one frame a line
+        return [i for i, line in enumerate(lines) if line.strip() and _is_number(line[:1])]
     found = []
     for i, line in enumerate(lines):
         fields = line.split()

@@ -2,8 +2,16 @@
 
 Every frame the daemon receives and every frame it sends (``is_rx`` False) is written here before
 anything else reads it; the log alone is enough to redo every result offline. Formats by suffix:
-``.blf`` (default), ``.asc`` and ``.log`` (candump -L), as :mod:`dtid.acquisition.logfile` reads
-them.
+``.blf`` (default), ``.asc``, ``.log`` (candump -L) and ``.mf4``, as :mod:`dtid.acquisition.logfile`
+reads them. The session's metadata (:mod:`dtid.acquisition.metadata`) goes into a sidecar
+``<log>.json`` when the session starts and again, with the log's integrity, when it ends; for
+.mf4 into the file's header.
+
+MF4 cannot be written crash-safe: python-can's writer (asammdf) keeps the frames in a temporary
+file and writes the MF4 file only when stopped, so a killed daemon would leave nothing. An .mf4
+session is therefore recorded in a crash-safe BLF journal (``<name>.journal.blf``) and converted
+when it ends; the journal is removed only once the MF4 file holds every one of its frames. A
+session that dies leaves the journal, readable by every command.
 
 Crash safety: python-can's writers keep frames in memory (the BLF writer up to a 128 KiB
 container; the text writers in Python's file buffer) and complete the file only when stopped. The
@@ -35,17 +43,19 @@ import re
 import threading
 import time
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import can
 from can.io.blf import FILE_HEADER_SIZE
 from can.io.generic import FileIOMessageWriter
 
+from dtid.acquisition.metadata import sidecar_path, with_integrity, write_sidecar
+from dtid.acquisition.mf4 import BulkMF4Writer, frame_count
 from dtid.errors import RecordingError
 
 logger = logging.getLogger(__name__)
 
-SUFFIXES = (".blf", ".asc", ".log")
+SUFFIXES = (".blf", ".asc", ".log", ".mf4")
 """Log formats the recorder writes, by suffix."""
 COMPRESSION_LEVEL = 1
 """zlib level of the BLF containers: fastest. Measured on ECU frames: 1.8 instead of 2.7 us per
@@ -133,11 +143,16 @@ class Recorder:
         Longest wall time a written frame may stay in memory, s.
     channel
         Channel name written into candump logs (the bus channel when it is a plain name).
+    metadata
+        The session's metadata (:func:`dtid.acquisition.metadata.session_metadata`); None for
+        none.
 
     Attributes
     ----------
     path : Path
-        The log.
+        The log (for .mf4: the file written when the session ends).
+    journal : Path or None
+        For .mf4: the BLF written during the session; None otherwise.
     frames : int
         Frames written.
     first_timestamp : float or None
@@ -150,26 +165,42 @@ class Recorder:
     """
 
     def __init__(
-        self, path: Path, start_s: float, flush_period_s: float, channel: str = "can0"
+        self,
+        path: Path,
+        start_s: float,
+        flush_period_s: float,
+        channel: str = "can0",
+        metadata: dict[str, Any] | None = None,
     ) -> None:
         suffix = path.suffix.lower()
         if suffix not in SUFFIXES:
             raise RecordingError(
                 f"log {path}: unsupported format '{path.suffix}'; use one of {', '.join(SUFFIXES)}"
             )
-        mode, encoding = ("xb", None) if suffix == ".blf" else ("x", "ascii")
+        if suffix == ".mf4" and path.exists():
+            raise RecordingError(f"log {path} exists already; it is never overwritten")
+        self.journal = path.with_name(f"{path.stem}.journal.blf") if suffix == ".mf4" else None
+        written = self.journal or path
+        mode, encoding = ("xb", None) if written.suffix == ".blf" else ("x", "ascii")
         try:
-            file = path.open(mode, encoding=encoding)
+            file = written.open(mode, encoding=encoding)
         except FileExistsError as error:
-            raise RecordingError(f"log {path} exists already; it is never overwritten") from error
+            raise RecordingError(
+                f"log {written} exists already; it is never overwritten"
+            ) from error
         except OSError as error:
-            raise RecordingError(f"cannot create log {path}: {error.strerror or error}") from error
+            raise RecordingError(
+                f"cannot create log {written}: {error.strerror or error}"
+            ) from error
         self.path = path
         self.frames = 0
         self.first_timestamp: float | None = None
         self.failure: str | None = None
         self.lost = 0
-        if suffix == ".blf":
+        self._metadata = metadata
+        if metadata is not None:
+            write_sidecar(written, with_integrity(metadata, 0, 0, False, None))
+        if written.suffix == ".blf":
             self._writer: FileIOMessageWriter = CrashSafeBLFWriter(file, start_s)
         elif suffix == ".asc":
             self._writer = can.ASCWriter(file)
@@ -232,18 +263,67 @@ class Recorder:
         self._sync.request()
 
     def close(self) -> None:
-        """Complete the file (BLF header with the true size, ASC end line), close and sync it."""
+        """Complete the file (BLF header with the true size, ASC end line), close and sync it;
+        write the metadata with the log's integrity; convert an .mf4 session's journal."""
         if self._writer.file.closed:
             return
         self._sync.close()
+        written = self.journal or self.path
         try:
             self._writer.stop()
-            with self.path.open("rb") as file:
+            with written.open("rb") as file:
                 os.fsync(file.fileno())
         except OSError as error:
             self._fail(error)
             with contextlib.suppress(OSError):
                 self._writer.file.close()
+        metadata = self._metadata
+        if metadata is not None:
+            metadata = with_integrity(
+                metadata, self.frames, self.lost, self.failure is None, self.failure
+            )
+        if self.journal is not None and self.frames:
+            self._convert_journal(metadata)
+        elif metadata is not None:
+            try:
+                write_sidecar(written, metadata)
+            except RecordingError as error:
+                logger.error("%s", error)
+
+    def _convert_journal(self, metadata: dict[str, Any] | None) -> None:
+        """Write the .mf4 file from the journal; remove the journal once the file holds all."""
+        journal = self.journal
+        assert journal is not None
+        try:
+            with can.BLFReader(journal) as reader:
+                frames = iter(reader)
+                first = next(frames)
+                writer = BulkMF4Writer(self.path, first.timestamp, metadata)
+                with writer:
+                    writer.on_message_received(first)
+                    for frame in frames:
+                        writer.on_message_received(frame)
+            with self.path.open("rb") as file:
+                os.fsync(file.fileno())
+            held = frame_count(self.path)
+        except (OSError, RecordingError, ValueError) as error:
+            reason = getattr(error, "strerror", None) or error
+            self.failure = self.failure or (
+                f"cannot write the MF4 file {self.path} ({reason}); the recording is kept in "
+                f"its journal {journal}"
+            )
+            logger.error("%s", self.failure)
+            return
+        if held != self.frames:
+            self.failure = self.failure or (
+                f"the MF4 file {self.path} holds {held} of the {self.frames} frames recorded; "
+                f"the recording is kept in its journal {journal}"
+            )
+            logger.error("%s", self.failure)
+            return
+        journal.unlink()
+        sidecar_path(journal).unlink(missing_ok=True)
+        logger.info("wrote %s (%d frames) from its journal", self.path, held)
 
 
 class _BackgroundSync:

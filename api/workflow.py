@@ -43,7 +43,7 @@ PathLike = str | os.PathLike[str]
 def read_recording(
     path: PathLike, dbc: PathLike | None = None, signals: PathLike | None = None
 ) -> Recording:
-    """Read and decode a CAN recording (.blf, .asc, .log; format by suffix).
+    """Read and decode a CAN recording (.blf, .asc, .log, .mf4, .trc, .csv; format by suffix).
 
     Parameters
     ----------

@@ -6,6 +6,7 @@ import logging
 import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING
 
@@ -126,7 +127,7 @@ class VehicleInterface:
     database : cantools.database.can.Database
         The CAN database.
     dbc_source : str or os.PathLike, optional
-        The database's file, named in error messages.
+        The database's file, named in error messages (attribute ``dbc_source``: Path or None).
 
     Raises
     ------
@@ -143,6 +144,7 @@ class VehicleInterface:
     ) -> None:
         self.signal_map = signal_map
         self.database = database
+        self.dbc_source = Path(dbc_source) if dbc_source is not None else None
         self._dbc_name = str(dbc_source) if dbc_source is not None else "the CAN database"
         self._roles = {role: self._bind(spec) for role, spec in signal_map.roles.items()}
         self._roles_by_frame: dict[tuple[int, bool], list[_BoundRole]] = {}
@@ -381,7 +383,7 @@ class VehicleInterface:
         if bound.product_checksum and bound.extra_signals["checksum"].name not in given:
             payload = apply_checksum(payload)
         return can.Message(
-            timestamp=timestamp,
+            timestamp=float(timestamp),  # a numpy float would be written as "np.float64(..)"
             arbitration_id=message.frame_id,
             is_extended_id=message.is_extended_frame,
             is_fd=message.is_fd,

@@ -43,6 +43,7 @@ from dtid.acquisition.config import (
 from dtid.acquisition.daemon import EXIT_ABORTED, EXIT_COMPLETED, Daemon
 from dtid.acquisition.health import HealthCounts
 from dtid.acquisition.logfile import read_log, read_log_checked
+from dtid.acquisition.metadata import read_metadata
 from dtid.acquisition.recorder import Recorder
 from dtid.acquisition.sequence import ZERO_REQUESTS, ToolFrames
 from dtid.acquisition.stream import REPLAY_PAGE, decode_event
@@ -226,8 +227,10 @@ def by_id(frames: list[can.Message], arbitration_id: int) -> list[can.Message]:
     return [f for f in frames if f.arbitration_id == arbitration_id]
 
 
-def test_completed_test_records_every_frame_and_streams_it(tmp_path: Path) -> None:
-    config = make_config(tmp_path)
+@pytest.mark.parametrize("log_format", ["blf", "mf4"])
+def test_completed_test_records_every_frame_and_streams_it(tmp_path: Path, log_format: str) -> None:
+    """Also for an .mf4 log (written from its BLF journal at the end), with its metadata."""
+    config = make_config(tmp_path, output={"log_format": log_format})
     ecu = FakeEcu(config.bus.channel)
     subscriber = Subscriber(config.pipeline)
     subscriber.start()
@@ -284,7 +287,17 @@ def test_completed_test_records_every_frame_and_streams_it(tmp_path: Path) -> No
     assert sum(e["frames"] for e in samples) == len(log)
     speed_t = [t for e in samples for t in e["roles"].get("speed", {}).get("t", [])]
     log_speed_t = [f.timestamp for f in log if f.arbitration_id == SPEED_ID]
-    np.testing.assert_allclose(speed_t, log_speed_t, rtol=0, atol=2e-9)  # BLF keeps ns
+    # BLF keeps ns; MF4 64-bit offsets from a start time, whose float sum keeps 0.24 us at 2026
+    np.testing.assert_allclose(
+        speed_t, log_speed_t, rtol=0, atol=2e-9 if log_format == "blf" else 5e-7
+    )
+    metadata = read_metadata(result.log_path)
+    assert metadata is not None and metadata["source"] == "dtid acquire"
+    assert metadata["integrity"] == {"frames": len(log), "lost": 0, "closed": True, "failure": None}
+    assert metadata["plan"] == config.test.as_dict()
+    assert sorted(p.name for p in result.session_dir.iterdir()) == sorted(
+        [result.log_path.name] + ([f"{result.log_path.name}.json"] if log_format == "blf" else [])
+    )
     phases = [(e["phase"], e["chirp"]) for e in events if e["kind"] == "phase"]
     assert phases == [
         ("settle", None),

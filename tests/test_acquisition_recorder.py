@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import signal
 import subprocess
 import sys
@@ -12,11 +13,14 @@ import can
 import pytest
 
 from dtid.acquisition.logfile import read_log
+from dtid.acquisition.metadata import read_metadata, session_metadata, sidecar_path
 from dtid.acquisition.recorder import Recorder, new_session_directory
+from dtid.dbc.loader import load_interface
+from dtid.dbc.resources import DEFAULT_DBC
 from dtid.errors import RecordingError
 
 ROOT = Path(__file__).resolve().parents[1]
-FORMATS = ("blf", "asc", "log")
+FORMATS = ("blf", "asc", "log", "mf4")
 
 
 def frames(start: float, n: int) -> list[can.Message]:
@@ -47,6 +51,8 @@ def test_log_reads_back_every_frame(tmp_path: Path, fmt: str) -> None:
         recorder.write(frame)
     recorder.close()
     assert recorder.frames == 300 and recorder.first_timestamp == written[0].timestamp
+    assert recorder.failure is None
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"test.{fmt}"]  # an mf4 journal: gone
     back = read_log(recorder.path)
     assert [key(f) for f in back] == [key(f) for f in written]
     origin = start if fmt == "asc" else 0.0  # ASC times are relative to the session start
@@ -66,6 +72,33 @@ def test_unsupported_suffix_is_refused(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="unsupported"):
         Recorder(tmp_path / "test.csv", time.time(), 0.5)
     assert not (tmp_path / "test.csv").exists()
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_metadata_travels_with_the_log(tmp_path: Path, fmt: str) -> None:
+    """The session's metadata is beside the log from the start (not closed), and at the end
+    carries what the log kept; an .mf4 file holds it in its header, no sidecar left."""
+    start = time.time()
+    path = tmp_path / f"session.{fmt}"
+    metadata = session_metadata(
+        session="session", started_s=start, source="test", interface=load_interface()
+    )
+    recorder = Recorder(path, start, 0.5, "vcan0", metadata)
+    written = recorder.journal or path
+    during = read_metadata(written)
+    assert during is not None and during["integrity"]["closed"] is False
+    for frame in frames(start, 120):
+        recorder.write(frame)
+    recorder.close()
+    after = read_metadata(path)
+    assert after is not None
+    assert after["integrity"] == {"frames": 120, "lost": 0, "closed": True, "failure": None}
+    assert after["interface"]["roles"]["speed"] == "EngineSpeed.EngineSpeedFiltered"
+    assert (
+        after["interface"]["dbc"]["sha256"] == hashlib.sha256(DEFAULT_DBC.read_bytes()).hexdigest()
+    )
+    assert sidecar_path(path).exists() == (fmt != "mf4")
+    assert not any(p.name.startswith("session.journal") for p in tmp_path.iterdir())
 
 
 def test_each_session_gets_its_own_directory(tmp_path: Path) -> None:
@@ -113,6 +146,9 @@ def test_log_survives_sigkill(tmp_path: Path, fmt: str, unflushed: int) -> None:
     )
     result = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True)
     assert result.returncode == -signal.SIGKILL, result.stderr.decode()
+    if fmt == "mf4":  # never converted: the session is in its journal
+        assert not path.exists()
+        path = path.with_name("killed.journal.blf")
     back = read_log(path)
     written = frames(start, flushed + unflushed)
     assert flushed <= len(back) <= len(written)

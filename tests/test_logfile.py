@@ -7,11 +7,20 @@ import numpy as np
 import pytest
 
 from dtid.acquisition.logfile import SUPPORTED_SUFFIXES, read_log, read_log_checked, write_log
+from dtid.acquisition.metadata import read_metadata, sidecar_path
 from dtid.errors import RecordingError
 
-FORMATS = [".blf", ".asc", ".log"]
+FORMATS = [".blf", ".asc", ".log", ".mf4", ".trc", ".csv"]
+TEXT_FORMATS = [".asc", ".log", ".trc", ".csv"]
 # Timestamp error relative to the first frame measured with python-can 4.6, s.
-TIME_RESOLUTION = {".blf": 1e-8, ".asc": 1e-6, ".log": 1e-6}
+TIME_RESOLUTION = {
+    ".blf": 1e-8,
+    ".asc": 1e-6,
+    ".log": 1e-6,
+    ".mf4": 1e-9,
+    ".trc": 1e-6,
+    ".csv": 1e-9,
+}
 
 
 def make_frames(count=20000, start=0.0, seed=0):
@@ -121,17 +130,19 @@ def test_write_errors(tmp_path):
     with pytest.raises(RecordingError, match="no CAN frames to write"):
         write_log(tmp_path / "empty.blf", [])
     with pytest.raises(
-        RecordingError, match=r"unsupported format '.csv'; supported suffixes are .asc, .blf, .log"
+        RecordingError,
+        match=r"unsupported format '.txt'; supported suffixes are .asc, .blf, .csv, .log, .mf4, "
+        r"\.trc",
     ):
-        write_log(tmp_path / "recording.csv", make_frames(count=5))
-    assert SUPPORTED_SUFFIXES == (".asc", ".blf", ".log")
+        write_log(tmp_path / "recording.txt", make_frames(count=5))
+    assert SUPPORTED_SUFFIXES == (".asc", ".blf", ".csv", ".log", ".mf4", ".trc")
 
 
 def test_read_errors(tmp_path):
     with pytest.raises(RecordingError, match=r"recording .*missing.blf does not exist"):
         read_log(tmp_path / "missing.blf")
-    with pytest.raises(RecordingError, match=r"supported suffixes are \.asc, \.blf, \.log"):
-        read_log(tmp_path / "recording.mf4")
+    with pytest.raises(RecordingError, match=r"supported suffixes are \.asc, \.blf, \.csv"):
+        read_log(tmp_path / "recording.mdf")
     folder = tmp_path / "folder.log"
     folder.mkdir()
     with pytest.raises(RecordingError, match="is a directory"):
@@ -227,11 +238,11 @@ def test_garbage_file_is_an_error(tmp_path, suffix):
     assert "\n" not in str(info.value)
 
 
-@pytest.mark.parametrize("suffix", [".asc", ".log"])
+@pytest.mark.parametrize("suffix", TEXT_FORMATS)
 def test_text_log_cut_in_a_line_drops_that_line(tmp_path, written, frames, suffix, caplog):
     data = written[suffix].read_bytes()
     # line end of the last frame
-    end = len(data) - 1 if suffix == ".log" else data.rfind(b"\nEnd TriggerBlock")
+    end = data.rfind(b"\nEnd TriggerBlock") if suffix == ".asc" else len(data) - 1
     for cut in (len(data) // 2, end - 6):
         caplog.clear()
         with caplog.at_level(logging.WARNING):
@@ -249,7 +260,7 @@ def test_asc_without_end_of_triggerblock_warns(tmp_path, written, frames, caplog
     assert len(read) == len(frames) and "lacks its closing 'End TriggerBlock'" in caplog.text
 
 
-@pytest.mark.parametrize("suffix", [".asc", ".log"])
+@pytest.mark.parametrize("suffix", TEXT_FORMATS)
 def test_text_log_with_binary_bytes_loses_that_line_only(tmp_path, written, frames, suffix, caplog):
     data = written[suffix].read_bytes()
     middle = data.find(b"\n", len(data) // 2) + 1
@@ -262,13 +273,21 @@ def test_text_log_with_binary_bytes_loses_that_line_only(tmp_path, written, fram
     assert f"line {line}: about 1 frame(s) lost" in caplog.text
 
 
-def test_candump_with_malformed_line_loses_that_line_only(tmp_path, written, frames, caplog):
-    data = written[".log"].read_bytes()
+@pytest.mark.parametrize(
+    ("suffix", "malformed"),
+    [
+        (".log", b"(12.5) can0 this is not a frame\n"),
+        (".trc", b"   999   12.000 DT  1  zzzz Rx -  8  00 00\n"),
+        (".csv", b"12.5,0xZZZ,0,0,0,8,not base64\n"),
+    ],
+)
+def test_malformed_line_loses_that_line_only(tmp_path, written, frames, suffix, malformed, caplog):
+    data = written[suffix].read_bytes()
     middle = data.find(b"\n", len(data) // 2) + 1
     line = data[:middle].count(b"\n") + 1
-    damaged = data[:middle] + b"(12.5) can0 this is not a frame\n" + data[middle:]
+    damaged = data[:middle] + malformed + data[middle:]
     with caplog.at_level(logging.WARNING):
-        read, integrity = read_log_checked(damaged_copy(tmp_path, written[".log"], damaged))
+        read, integrity = read_log_checked(damaged_copy(tmp_path, written[suffix], damaged))
     assert same_frames(read, frames)
     assert [d.where for d in integrity.damaged] == [f"line {line}"]
 
@@ -305,3 +324,59 @@ def test_real_candump_log(tmp_path, realdata):
     path = tmp_path / "genesis.blf"
     write_log(path, frames)
     assert same_frames(read_log(path), frames)
+
+
+# --- MF4 ----------------------------------------------------------------------------------------
+
+
+def test_mf4_written_by_python_can_itself_is_read(tmp_path, frames):
+    """An .mf4 file from python-can's own writer (one frame at a time, its own start time), as
+    another tool built on it would leave: the same frames."""
+    path = tmp_path / "other-tool.mf4"
+    with can.Logger(path) as writer:
+        for frame in frames[:3000]:
+            writer.on_message_received(frame)
+    read = read_log(path)
+    assert same_frames(read, frames[:3000])
+    times = np.array([m.timestamp for m in read]) - np.array([m.timestamp for m in frames[:3000]])
+    assert np.abs(times).max() < 1e-6  # its times relative to the wall clock: 0.2 us kept
+
+
+@pytest.mark.parametrize("damage", ["cut", "zeroed"])
+def test_damaged_mf4_is_refused_in_one_line(tmp_path, written, damage, capfd):
+    data = bytearray(written[".mf4"].read_bytes())
+    if damage == "cut":
+        data = data[: len(data) // 2]
+    else:
+        data[len(data) // 2 : len(data) // 2 + 64] = bytes(64)
+    path = damaged_copy(tmp_path, written[".mf4"], bytes(data))
+    with pytest.raises(RecordingError, match=r"damaged.mf4 is not a readable MF4 file") as info:
+        read_log(path)
+    assert "\n" not in str(info.value) and "journal" in str(info.value)
+    assert "Traceback" not in capfd.readouterr().err  # asammdf's own complaints are kept quiet
+
+
+# --- metadata -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("suffix", FORMATS)
+def test_metadata_written_with_a_log_reads_back(tmp_path, suffix):
+    """In the .mf4 header, in a sidecar for the others; a recording overwritten without
+    metadata loses the sidecar that described the old one."""
+    path = tmp_path / f"recording{suffix}"
+    metadata = {"schema": "dtid-recording-metadata/1", "session": 's <&> "1"', "plan": [1, 2]}
+    write_log(path, make_frames(count=50), metadata=metadata)
+    integrity = {"frames": 50, "lost": 0, "closed": True, "failure": None}
+    assert read_metadata(path) == {**metadata, "integrity": integrity}
+    assert sidecar_path(path).exists() == (suffix != ".mf4")
+    write_log(path, make_frames(count=50, seed=7), overwrite=True)
+    assert read_metadata(path) is None
+    assert not sidecar_path(path).exists()
+
+
+def test_unreadable_sidecar_is_named(tmp_path):
+    path = tmp_path / "recording.blf"
+    write_log(path, make_frames(count=5))
+    sidecar_path(path).write_text("{not json")
+    with pytest.raises(RecordingError, match=r"recording.blf.json of recording .* not readable"):
+        read_metadata(path)

@@ -47,10 +47,13 @@ def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     command = ["diagnose", str(recording), "--identification", str(folder / "identification.json")]
     assert main([*command, "--json", str(path)]) == 0
     documents["diagnosis"] = json.loads(path.read_text())
+    documents["recording-metadata"] = documents["inspect"]["metadata"]
     return documents
 
 
-@pytest.mark.parametrize("name", ["inspect", "frf", "identification", "diagnosis"])
+@pytest.mark.parametrize(
+    "name", ["inspect", "frf", "identification", "diagnosis", "recording-metadata"]
+)
 def test_each_output_fits_its_schema(outputs: dict[str, object], name: str) -> None:
     validate(outputs[name], name)
 
@@ -61,6 +64,7 @@ def test_every_schema_file_is_tested() -> None:
         "frf",
         "identification",
         "diagnosis",
+        "recording-metadata",
     }
 
 
@@ -72,6 +76,8 @@ def test_every_schema_file_is_tested() -> None:
         ("identification", ("idle_loop",), {"x": {"mode": "own_controller"}}),
         ("frf", ("runs", 0, "amplitude_nm"), -5.0),
         ("inspect", ("roles",), {"rpm": {}}),
+        ("inspect", ("metadata", "integrity", "lost"), -1),
+        ("recording-metadata", ("interface", "roles", "speed"), "no signal"),
         ("diagnosis", ("adequate",), "yes"),
         ("diagnosis", ("verdict", "mechanisms"), "none"),
     ],

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from dtid.acquisition.metadata import interface_differences, read_metadata
 from dtid.cli.commands.common import add_interface_options
+from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.loader import load_interface
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.samples.recording import Recording, load_recording
@@ -22,7 +25,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Decode a recording and report, per role, its sample count, rate, range and "
         "longest gap, and the chirp runs found in the test torque.",
     )
-    parser.add_argument("recording", type=Path, help="CAN recording (.blf, .asc or .log)")
+    parser.add_argument(
+        "recording", type=Path, help="CAN recording (.blf, .asc, .log, .mf4, .trc or .csv)"
+    )
     parser.add_argument("--json", type=Path, help="also write the report as JSON")
     add_interface_options(parser)
     parser.set_defaults(run=run)
@@ -62,6 +67,7 @@ def report(recording: Recording) -> dict[str, object]:
         "missing_roles": list(recording.missing_roles),
         "runs": runs,
         "integrity": recording.integrity.as_dict(),
+        "metadata": read_metadata(recording.path),
     }
 
 
@@ -69,9 +75,31 @@ def _fmt(value: object, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
+def _print_metadata(metadata: dict[str, Any] | None, interface: VehicleInterface) -> None:
+    """What travels with the recording, and whether it is read as it was made."""
+    if metadata is None:
+        print("metadata: none (not recorded by dtid, or its sidecar <log>.json is not beside it)")
+        return
+    kept = metadata.get("integrity") or {}
+    software = metadata.get("software") or {}
+    print(
+        f"metadata: session {metadata.get('session')}, {metadata.get('source')}, started "
+        f"{metadata.get('started_utc')}, drivetrain-id {software.get('drivetrain-id')}"
+    )
+    closed = "closed cleanly" if kept.get("closed") else "not closed cleanly"
+    failure = f" ({kept['failure']})" if kept.get("failure") else ""
+    print(
+        f"metadata: the log kept {kept.get('frames')} frames, lost {kept.get('lost')}, "
+        f"{closed}{failure}"
+    )
+    for difference in interface_differences(metadata, interface):
+        print(f"metadata: warning: {difference}")
+
+
 def run(args: argparse.Namespace) -> int:
     """Print (and optionally save) the report."""
-    document = report(load_recording(args.recording, load_interface(args.dbc, args.signals)))
+    interface = load_interface(args.dbc, args.signals)
+    document = report(load_recording(args.recording, interface))
     print(f"{document['recording']}: {document['frames']} frames, {document['duration_s']:.1f} s")
     integrity = document["integrity"]
     if integrity["intact"]:
@@ -82,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"integrity: damaged at {damage['where']}, about {damage['frames_lost']} frame(s) lost"
         )
+    _print_metadata(document["metadata"], interface)
     print(f"{'role':<16}{'count':>8}{'rate/Hz':>10}{'min':>12}{'max':>12}{'max gap/s':>11}")
     for role, s in document["roles"].items():
         print(

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import time
 from pathlib import Path
 
 from dtid.acquisition.logfile import write_log
+from dtid.acquisition.metadata import session_metadata
 from dtid.acquisition.plan import TestPlan
 from dtid.cli.commands.common import add_interface_options, positive_float
 from dtid.dbc.loader import load_interface
@@ -27,10 +29,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "simulate",
         help="simulate a chirp test and write the CAN recording",
         description="Simulate the chirp test on the numba plant and write the frames the vehicle "
-        "bus would carry (.blf, .asc or candump .log by the file's suffix), timestamps in "
-        "simulated time.",
+        "bus would carry (.blf, .asc, candump .log, .mf4, .trc or .csv by the file's suffix), "
+        "timestamps in simulated time, with its metadata (docs/formats.md).",
     )
-    parser.add_argument("output", type=Path, help="recording to write (.blf, .asc or .log)")
+    parser.add_argument(
+        "output", type=Path, help="recording to write (.blf, .asc, .log, .mf4, .trc or .csv)"
+    )
     parser.add_argument(
         "--params", type=Path, help="parameter set (TOML; default: the reference vehicle)"
     )
@@ -90,7 +94,19 @@ def run(args: argparse.Namespace) -> int:
     )
     interface = load_interface(args.dbc, args.signals)
     result = simulate(parameters, plan, options, seed=args.seed)
-    count = write_log(args.output, simulation_frames(result, interface), overwrite=args.force)
+    metadata = session_metadata(
+        session=args.output.stem,
+        started_s=time.time(),
+        source=f"dtid simulate (seed {args.seed})",
+        interface=interface,
+        plan=plan.as_dict(),
+    )
+    count = write_log(
+        args.output,
+        simulation_frames(result, interface),
+        overwrite=args.force,
+        metadata=metadata,
+    )
     print(
         f"wrote {args.output}: {count} frames, {plan.end_s:.0f} s, chirps at "
         f"{', '.join(f'{a:g}' for a in plan.amplitudes_nm)} N*m"

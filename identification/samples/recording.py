@@ -23,7 +23,7 @@ logger = logging.getLogger(__name__)
 
 TIME_DECIMALS = 6
 TIME_RESOLUTION_S = 10.0**-TIME_DECIMALS
-"""Resolution of recording times, s: what ASC and candump logs store (BLF stores ns)."""
+"""Resolution of recording times, s: what ASC, candump and TRC logs store (BLF stores ns)."""
 
 
 @dataclass(frozen=True)
@@ -234,7 +234,7 @@ def request_timeout(interface: VehicleInterface) -> float:
 
 
 def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) -> Recording:
-    """Read and decode a CAN recording (.blf, .asc or candump .log).
+    """Read and decode a CAN recording (.blf, .asc, candump .log, .mf4, .trc or .csv).
 
     Times are made relative to the recording's first frame and rounded to
     :data:`TIME_RESOLUTION_S`, so every format gives the same series whatever absolute start time
