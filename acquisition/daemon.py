@@ -389,6 +389,11 @@ class Daemon:
             path.publish_block(final=True)
         path.publish_health()
         path.publish("end", {"status": self._status, "reason": self._reason, "t_s": self._t_end})
+        self._recorder.outcome = {
+            "status": self._status,
+            "reason": self._reason,
+            "health": asdict(path.health.counts),
+        }
         self._recorder.close()
         if self._recorder.failure is not None:
             self.report(

@@ -11,7 +11,9 @@ engineer who finds it months later, or a fleet table, needs to. The metadata is 
 - ``interface``: the DBC and the signal map (file name and SHA-256 each) and the roles as
   ``MESSAGE.SIGNAL``;
 - ``plan``: the test plan; ``bus``: interface, channel, time factor (where a bus was used);
-- ``integrity``: frames written, frames lost, whether the log was closed cleanly and why not.
+- ``integrity``: frames written, frames lost, whether the log was closed cleanly and why not;
+- ``outcome``: how the daemon's test ended (``status``, abort ``reason``, the health counters);
+  None until it ends, and for a simulated recording.
 
 Where it goes: inside an .mf4 file, in the header comment (:mod:`dtid.acquisition.mf4`); beside
 any other log, in a sidecar ``<log name>.json`` (``session.blf`` -> ``session.blf.json``). The
@@ -101,6 +103,7 @@ def session_metadata(
         "plan": plan,
         "bus": bus,
         "integrity": {"frames": 0, "lost": 0, "closed": False, "failure": None},
+        "outcome": None,
     }
 
 

@@ -153,6 +153,9 @@ class Recorder:
         The log (for .mf4: the file written when the session ends).
     journal : Path or None
         For .mf4: the BLF written during the session; None otherwise.
+    outcome : dict or None
+        How the test ended (status, reason, health), set by the daemon before :meth:`close`
+        and written into the metadata.
     frames : int
         Frames written.
     first_timestamp : float or None
@@ -198,6 +201,7 @@ class Recorder:
         self.failure: str | None = None
         self.lost = 0
         self._metadata = metadata
+        self.outcome: dict[str, Any] | None = None
         if metadata is not None:
             write_sidecar(written, with_integrity(metadata, 0, 0, False, None))
         if written.suffix == ".blf":
@@ -282,6 +286,7 @@ class Recorder:
             metadata = with_integrity(
                 metadata, self.frames, self.lost, self.failure is None, self.failure
             )
+            metadata["outcome"] = self.outcome
         if self.journal is not None and self.frames:
             self._convert_journal(metadata)
         elif metadata is not None:

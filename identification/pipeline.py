@@ -265,11 +265,35 @@ class IdentificationReport:
                     roles.append(role)
         return measured, model, roles
 
+    def curves(self) -> list[dict[str, object]]:
+        """:meth:`fit_curves` as JSON: per run its label, role, amplitude, frequencies and the
+        measured and identified |G_DRV| (dB), for a report to draw Fig. 6 without the data."""
+        labels = [  # as the NRMSEs are labelled, in fit_curves' order
+            f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
+            for selection in (self.fit, self.validation)
+            if selection is not None
+            for test, runs in zip(selection.tests, selection.runs, strict=True)
+            for i in runs
+        ]
+        measured, model, roles = self.fit_curves()
+        return [
+            {
+                "label": label,
+                "role": role,
+                "amplitude_nm": estimate.run.amplitude_nm,
+                "frequency_hz": estimate.frequency_hz.tolist(),
+                "measured_db": estimate.drv_db.tolist(),
+                "model_db": np.asarray(db).tolist(),
+            }
+            for label, estimate, db, role in zip(labels, measured, model, roles, strict=True)
+        ]
+
     @property
     def parameters(self) -> dict[str, float]:
         """The identified parameters by name (setup 4's, the inertias J1-J3 and K), SI units
         (``units`` of :meth:`as_dict`)."""
-        return dict(self.as_dict()["parameters"])  # type: ignore[arg-type]
+        p = self.identification.parameters
+        return {**self.identification.theta, "J1": p.J1, "J2": p.J2, "J3": p.J3, "K": self.gain}
 
     @property
     def intervals(self) -> dict[str, tuple[float, float]]:
@@ -298,8 +322,7 @@ class IdentificationReport:
     def as_dict(self) -> dict[str, object]:
         """The JSON document of ``dtid identify``."""
         result = self.identification
-        p = result.parameters
-        parameters = {**result.theta, "J1": p.J1, "J2": p.J2, "J3": p.J3, "K": self.gain}
+        parameters = self.parameters
         intervals = {
             name: {"lower": prof.interval[0], "upper": prof.interval[1]}
             for name, prof in self.profiles.items()
@@ -329,6 +352,16 @@ class IdentificationReport:
             "objective": result.objective,
             "parameter_sets": result.parameter_sets,
             "seconds": result.seconds,
+            "profiles": {
+                name: {
+                    "values": prof.values.tolist(),
+                    "objective": prof.objective.tolist(),
+                    "statistic": prof.statistic.tolist(),
+                    "margin": prof.margin.tolist(),
+                }
+                for name, prof in self.profiles.items()
+            },
+            "curves": self.curves() if self.fit else [],
         }
 
 

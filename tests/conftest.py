@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -42,3 +45,58 @@ def reference_test(reference: DrivetrainParameters) -> SimulationResult:
 @pytest.fixture(scope="session")
 def reference_data(reference_test: SimulationResult) -> TestData:
     return from_simulation(reference_test)
+
+
+HELD = ["J_sum=0.28", "x1=0.625", "x12=0.857", "c23=80", "d23=0.3", "Tc12=0.3", "eps23=0.012"]
+"""The reference's values, held so that the search (c12, d12, eps12 free) takes seconds where the
+search is not the subject (the JSON contracts, the report)."""
+
+
+@dataclass(frozen=True)
+class CommandOutputs:
+    """A short simulated test and what the commands made of it, in one folder: ``test.blf``,
+    ``inspect.json``, ``frf.json``, ``identification.json``, ``diagnosis.json`` and
+    ``diagnosis.png``."""
+
+    folder: Path
+    recording: Path
+    documents: dict[str, Any]
+
+
+@pytest.fixture(scope="session")
+def command_outputs(tmp_path_factory: pytest.TempPathFactory) -> CommandOutputs:
+    """`dtid simulate`, `inspect`, `frf`, `identify` (c12, d12, eps12 free, three profile points)
+    and `diagnose` (of that identification) on a 20 s chirp test, run once."""
+    from dtid.cli import main
+
+    folder = tmp_path_factory.mktemp("commands")
+    recording = folder / "test.blf"
+    assert main(["simulate", str(recording), "--duration", "20"]) == 0
+    commands = {
+        "inspect": ["inspect", str(recording)],
+        "frf": ["frf", str(recording)],
+        "identification": [
+            "identify",
+            str(recording),
+            "--generations",
+            "2",
+            "--profile-points",
+            "3",
+            "--fix",
+            *HELD,
+        ],
+        "diagnosis": [
+            "diagnose",
+            str(recording),
+            "--identification",
+            str(folder / "identification.json"),
+            "--plot",
+            str(folder / "diagnosis.png"),
+        ],
+    }
+    documents = {}
+    for name, command in commands.items():
+        path = folder / f"{name}.json"
+        assert main([*command, "--json", str(path)]) == 0
+        documents[name] = json.loads(path.read_text())
+    return CommandOutputs(folder, recording, documents)

@@ -8,45 +8,14 @@ from pathlib import Path
 
 import jsonschema
 import pytest
+from conftest import CommandOutputs
 from json_schemas import SCHEMAS, validate
-
-from dtid.cli import main
-
-HELD = ["J_sum=0.28", "x1=0.625", "x12=0.857", "c23=80", "d23=0.3", "Tc12=0.3", "eps23=0.012"]
-"""The reference's values, held so that the search (c12, d12, eps12 free) takes seconds: the
-schema is the subject here, not the search."""
 
 
 @pytest.fixture(scope="module")
-def outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
-    """The documents of `dtid inspect`, `frf`, `identify` and `diagnose` (of that identification)
-    on a short simulated test."""
-    folder = tmp_path_factory.mktemp("schemas")
-    recording = folder / "test.blf"
-    assert main(["simulate", str(recording), "--duration", "20"]) == 0
-    commands = {
-        "inspect": ["inspect", str(recording)],
-        "frf": ["frf", str(recording)],
-        "identification": [
-            "identify",
-            str(recording),
-            "--generations",
-            "2",
-            "--profile-points",
-            "3",
-            "--fix",
-            *HELD,
-        ],
-    }
-    documents = {}
-    for name, command in commands.items():
-        path = folder / f"{name}.json"
-        assert main([*command, "--json", str(path)]) == 0
-        documents[name] = json.loads(path.read_text())
-    path = folder / "diagnosis.json"
-    command = ["diagnose", str(recording), "--identification", str(folder / "identification.json")]
-    assert main([*command, "--json", str(path)]) == 0
-    documents["diagnosis"] = json.loads(path.read_text())
+def outputs(command_outputs: CommandOutputs) -> dict[str, object]:
+    """The documents of `dtid inspect`, `frf`, `identify` and `diagnose` on a short test."""
+    documents = dict(command_outputs.documents)
     documents["recording-metadata"] = documents["inspect"]["metadata"]
     return documents
 

@@ -392,6 +392,11 @@ def test_live_result_equals_dtid_identify_on_the_log(live_run: dict, offline: di
     assert written == live
     validate(written, "identification")
     assert (live_run["out"] / "fig6.png").stat().st_size > 10_000
+    # the session's HTML report beside its log, from the live data and this result
+    report = (live_run["out"].parent / "report.html").read_text()
+    assert "while the session ran" in report and "id='fig-fit'" in report
+    for name in ("c12", "d12", "eps12"):
+        assert f"<td>{name}</td><td class='num'>{live['parameters'][name]:.4g}</td>" in report
     # the PUB carried the same result (the SUB joined before the worker published anything)
     assert [doc for topic, doc in live_run["received"] if topic == "result"] == [live]
 

@@ -461,7 +461,7 @@ class Worker:
                 self._progress(
                     session,
                     "identified",
-                    parameters=outcome.as_dict()["parameters"],
+                    parameters=outcome.parameters,
                     seconds_after_chirp=after,
                 )
             validation_due = session.report is not None and live.validation_due()
@@ -539,24 +539,56 @@ class Worker:
             self._progress(session, "error", message=str(error))
             return
         stage = "validated" if document["nrmse"]["validation"] else "done"
+        diagnosis_path = None
         if stage == "validated" and self.options.diagnose:
-            written += self._diagnose(session, report, folder)
+            files = self._diagnose(session, report, folder)
+            written += files
+            diagnosis_path = Path(files[0]) if files else None
+        written += self._report(session, live, diagnosis_path)
         self._progress(session, stage, files=written)
+
+    def _report(self, session: _Session, live: LiveSession, diagnosis: Path | None) -> list[str]:
+        """Write the session's HTML report beside its log; the files written."""
+        from dtid.identification.html_report import REPORT_FILE, ReportInputs, write_report
+
+        path = live.log_path.parent / REPORT_FILE
+        figure = diagnosis.with_suffix(".png") if diagnosis is not None else None
+        try:
+            inputs = ReportInputs(
+                recordings=[live.recording()],
+                files=[live.log_path],
+                live=True,
+                identification=session.result,
+                diagnosis=_read_json(diagnosis) if diagnosis is not None else None,
+                diagnosis_figure=figure if figure is not None and figure.exists() else None,
+                title=live.log_path.parent.name,
+            )
+            write_report(inputs, path)
+        except DtidError as error:
+            self._progress(session, "error", message=f"the report: {error}")
+            return []
+        return [str(path)]
 
     def _diagnose(self, session: _Session, report: IdentificationReport, folder: Path) -> list[str]:
         """Diagnose the validated identification, publish and write it; the files written."""
         from dtid.identification.diagnosis.diagnose import diagnose_report
         from dtid.jsonfile import write_json
 
-        document = diagnose_report(report).as_dict()
+        diagnosis = diagnose_report(report)
+        document = diagnosis.as_dict()
         self._publish("diagnosis", {"session": session.id, **document})
         path = folder / "diagnosis.json"
         try:
             write_json(path, document)
+            written = [str(path)]
+            if self.options.plot:
+                from dtid.identification.diagnosis.figure import plot_mismatch
+
+                written.append(str(plot_mismatch(diagnosis, path.with_suffix(".png"))))
         except DtidError as error:
             self._progress(session, "error", message=str(error))
             return []
-        return [str(path)]
+        return written
 
     def _fail(self, session: _Session, message: str) -> None:
         logger.error("session %s: %s", session.id, message)
@@ -611,3 +643,8 @@ class Worker:
                 self._pub.send_multipart([topic.encode(), body.encode()])
             for callback in self.listeners:
                 callback(topic, document)
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    """A JSON document the worker wrote itself."""
+    return dict(json.loads(path.read_text()))

@@ -1,0 +1,118 @@
+"""`dtid report`: one self-contained HTML file, checked in its text and in a real browser."""
+
+from __future__ import annotations
+
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import CommandOutputs
+
+from dtid.cli import main
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+CHROMIUM_ARGS = [  # as on this machine's closed network (docs/formats.md)
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+FIGURES = ("fig-frf", "fig-fit", "fig-profiles", "fig-diagnosis")
+
+
+@pytest.fixture(scope="module")
+def report(command_outputs: CommandOutputs, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The report of the commands' folder: a recording with its identification and diagnosis."""
+    path = tmp_path_factory.mktemp("report") / "report.html"
+    folder = command_outputs.folder
+    assert main(["report", str(command_outputs.recording), "-o", str(path)]) == 0
+    assert (folder / "diagnosis.png").exists()
+    return path
+
+
+def test_the_report_holds_the_identification_and_diagnosis(
+    report: Path, command_outputs: CommandOutputs
+) -> None:
+    text = report.read_text()
+    identification = command_outputs.documents["identification"]
+    for name, value in identification["parameters"].items():
+        assert re.search(rf"<td>{name}</td><td class='num'>{value:.4g}</td>", text), name
+    for name, interval in identification["intervals"].items():
+        assert f"{interval['lower']:.4g} - {interval['upper']:.4g}" in text, name
+        assert f"<td>{identification['identifiable'][name]}</td>" in text
+    for label, value in identification["nrmse"]["fit"].items():
+        assert f"{value:.4f}" in text and label.split("/")[-1] in text
+    assert command_outputs.documents["diagnosis"]["verdict"]["explanation"] in text
+    for figure in FIGURES:
+        assert f"id='{figure}'" in text
+    assert "dtid simulate (seed 0)" in text  # the metadata travelled with the recording
+
+
+def test_the_report_is_self_contained(report: Path) -> None:
+    """Nothing is fetched when it opens: no script, no style sheet, no image by address."""
+    text = report.read_text()
+    assert "<script" not in text and "<link" not in text
+    sources = re.findall(r"src='([^']*)'", text)
+    assert len(sources) == len(FIGURES)
+    assert all(s.startswith("data:image/png;base64,") for s in sources)
+    assert not re.search(r"(href|src)=['\"]?(https?:|//|file:)", text)
+
+
+def test_a_recording_alone_says_what_is_missing(tmp_path: Path) -> None:
+    recording = tmp_path / "alone.blf"
+    assert main(["simulate", str(recording), "--duration", "20"]) == 0
+    assert main(["report", str(recording)]) == 0
+    text = (tmp_path / "report.html").read_text()
+    assert "Not identified" in text and "dtid identify alone.blf --json" in text
+    assert "Not diagnosed" in text and "id='fig-frf'" in text
+    assert "id='fig-fit'" not in text
+
+
+def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["report", str(tmp_path / "missing.blf")]) == 2
+    assert "missing.blf does not exist" in capsys.readouterr().err
+    assert main(["report", str(tmp_path)]) == 2
+    assert "holds no recording" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(
+    CHROMIUM is None, reason="Debian's chromium is not installed (apt install chromium)"
+)
+def test_the_report_renders_in_chromium(report: Path, tmp_path: Path) -> None:
+    """Opened in headless Chromium: no console or page error, every image decoded, and the fit
+    figure's screenshot shows the plot (coloured curves on white, not an empty box)."""
+    sync_api = pytest.importorskip("playwright.sync_api")
+    errors: list[str] = []
+    with sync_api.sync_playwright() as playwright:
+        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 1200, "height": 900})
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda error: errors.append(str(error)))
+            page.goto(report.as_uri())
+            images = page.evaluate(
+                "Array.from(document.images).map(i => [i.closest('figure').id, i.complete, "
+                "i.naturalWidth, i.naturalHeight])"
+            )
+            shot = tmp_path / "fit.png"
+            page.locator("#fig-fit img").screenshot(path=str(shot))
+            title = page.title()
+        finally:
+            browser.close()
+    assert errors == []
+    assert sorted(i[0] for i in images) == sorted(FIGURES)
+    assert all(complete and width > 300 and height > 150 for _, complete, width, height in images)
+    assert title.startswith("drivetrain-id test report")
+    from matplotlib.image import imread
+
+    pixels = imread(shot)[..., :3]
+    white = (pixels > 0.95).all(axis=-1)
+    colour = pixels.max(axis=-1) - pixels.min(axis=-1) > 0.25  # the curves, not grey axes
+    assert 0.5 < white.mean() < 0.97
+    assert colour.mean() > 0.005
+    assert np.unique(pixels.reshape(-1, 3), axis=0).shape[0] > 50
