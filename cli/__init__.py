@@ -20,6 +20,7 @@ from dtid.cli.commands import (
     identify,
     inspect,
     keys,
+    monitor,
     profile,
     report,
     simulate,
@@ -39,6 +40,7 @@ COMMANDS = (
     profile,
     acquire,
     worker,
+    monitor,
     vehicle,
     keys,
 )
