@@ -14,6 +14,7 @@ from collections.abc import Sequence
 
 from dtid.cli.commands import (
     acquire,
+    batch,
     demo,
     diagnose,
     frf,
@@ -37,6 +38,7 @@ COMMANDS = (
     identify,
     diagnose,
     report,
+    batch,
     profile,
     acquire,
     worker,

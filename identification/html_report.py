@@ -176,15 +176,25 @@ def write_report(inputs: ReportInputs, path: str | os.PathLike[str]) -> Path:
     RecordingError
         If a recording cannot be read or the file cannot be written.
     """
+    return write_html(path, render(inputs))
+
+
+def write_html(path: str | os.PathLike[str], text: str) -> Path:
+    """Write a page to ``path``, whole or not at all.
+
+    Raises
+    ------
+    RecordingError
+        If the file cannot be written.
+    """
     path = Path(path)
-    text = render(inputs)
     temporary = path.with_name(f".{path.name}.{os.getpid()}.partial")
     try:
         temporary.write_text(text, encoding="utf-8")
         temporary.replace(path)
     except OSError as error:
         temporary.unlink(missing_ok=True)
-        raise RecordingError(f"cannot write the report {path}: {error.strerror or error}") from None
+        raise RecordingError(f"cannot write {path}: {error.strerror or error}") from None
     return path
 
 
@@ -200,14 +210,18 @@ def render(inputs: ReportInputs) -> str:
         _diagnosis_section(inputs.diagnosis, inputs.diagnosis_figure, inputs.files),
         _versions_section(inputs.files, metadata, inputs.live),
     ]
-    title = f"drivetrain-id test report: {inputs.title}"
+    return page(f"drivetrain-id test report: {inputs.title}", sections)
+
+
+def page(title: str, sections: Sequence[str]) -> str:
+    """A whole self-contained HTML page: the title, the sections, who made it and when."""
     return (
         "<!DOCTYPE html>\n<html lang='en'>\n<head>\n<meta charset='utf-8'>\n"
-        f"<title>{_e(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
-        f"<h1>{_e(title)}</h1>\n"
+        f"<title>{escape(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
+        f"<h1>{escape(title)}</h1>\n"
         + "\n".join(sections)
         + f"\n<p class='missing'>Made {_now()} by drivetrain-id "
-        f"{_e(software_versions()['drivetrain-id'])}.</p>\n</body>\n</html>\n"
+        f"{escape(software_versions()['drivetrain-id'])}.</p>\n</body>\n</html>\n"
     )
 
 
@@ -224,8 +238,8 @@ def _summary(
         outcome = (meta or {}).get("outcome")
         if outcome and outcome.get("status") == "aborted":
             lines.append(
-                f"<span class='warn'>The test of {_e(path.name)} was aborted "
-                f"({_e(outcome.get('reason'))}).</span>"
+                f"<span class='warn'>The test of {escape(path.name)} was aborted "
+                f"({escape(outcome.get('reason'))}).</span>"
             )
     identification = inputs.identification
     if identification:
@@ -237,7 +251,7 @@ def _summary(
         )
     if inputs.diagnosis:
         verdict = inputs.diagnosis.get("verdict", {})
-        lines.append(f"Diagnosis: {_e(verdict.get('explanation', ''))}")
+        lines.append(f"Diagnosis: {escape(verdict.get('explanation', ''))}")
     return "<div class='summary' id='summary'>" + " ".join(lines) + "</div>"
 
 
@@ -256,7 +270,7 @@ def _test_section(
             "intact"
             if integrity.intact
             else "<span class='warn'>"
-            + _e(
+            + escape(
                 "; ".join(
                     [*([integrity.cut] if integrity.cut else [])]
                     + [d.describe() for d in integrity.damaged]
@@ -265,7 +279,7 @@ def _test_section(
             + "</span>"
         )
         rows = [
-            ("file", _e(recording.path.name)),
+            ("file", escape(recording.path.name)),
             ("frames", f"{recording.n_frames}"),
             ("time span", f"{recording.duration_s:.1f} s"),
             ("integrity", state),
@@ -273,10 +287,10 @@ def _test_section(
         if meta:
             kept = meta.get("integrity") or {}
             rows += [
-                ("made by", _e(f"{meta.get('source')}, started {meta.get('started_utc')}")),
+                ("made by", escape(f"{meta.get('source')}, started {meta.get('started_utc')}")),
                 (
                     "log kept",
-                    _e(
+                    escape(
                         f"{kept.get('frames')} frames, {kept.get('lost')} lost, "
                         + ("closed cleanly" if kept.get("closed") else "not closed cleanly")
                         + (f" ({kept['failure']})" if kept.get("failure") else "")
@@ -285,22 +299,22 @@ def _test_section(
             ]
             plan = meta.get("plan")
             if plan:
-                rows.append(("plan", _e(_plan(plan))))
+                rows.append(("plan", escape(_plan(plan))))
             outcome = meta.get("outcome")
             if outcome:
                 ended = outcome.get("status", "")
                 if outcome.get("reason"):
                     ended += f" ({outcome['reason']})"
-                rows.append(("ended", _e(ended)))
+                rows.append(("ended", escape(ended)))
                 health = outcome.get("health") or {}
-                rows.append(("health", _e(", ".join(f"{k} {v}" for k, v in health.items()))))
+                rows.append(("health", escape(", ".join(f"{k} {v}" for k, v in health.items()))))
         else:
             rows.append(("metadata", "<span class='missing'>none travels with this file</span>"))
-        parts.append(_table(["", ""], rows, header=False))
+        parts.append(table_html(["", ""], rows, header=False))
         runs = _runs(recording)
         if runs:
             parts.append(
-                _table(
+                table_html(
                     ["chirp", "amplitude / N*m", "band / Hz", "from / s", "to / s"],
                     [
                         (
@@ -334,7 +348,7 @@ def _frf_section(recordings: list[Recording]) -> str:
     parts = ["<h2 id='frf'>Frequency responses</h2>"]
     if estimates:
         parts.append(
-            _figure(
+            figure_html(
                 frf_figure(estimates),
                 "frf",
                 "|G_DRV|, |G_ENG| and the coherence of every chirp run (the paper's Fig. 3).",
@@ -342,7 +356,7 @@ def _frf_section(recordings: list[Recording]) -> str:
         )
     else:
         parts.append("<p class='missing'>No frequency response could be estimated.</p>")
-    parts += [f"<p class='warn'>{_e(p)}</p>" for p in problems]
+    parts += [f"<p class='warn'>{escape(p)}</p>" for p in problems]
     return "\n".join(parts)
 
 
@@ -352,7 +366,7 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
         command = "dtid identify " + " ".join(p.name for p in recordings) + " --json "
         parts.append(
             "<p class='missing'>Not identified. Make it with <code>"
-            + _e(command + IDENTIFICATION_FILE)
+            + escape(command + IDENTIFICATION_FILE)
             + "</code> (beside the recordings) or pass <code>--identification</code>.</p>"
         )
         return "\n".join(parts)
@@ -369,24 +383,26 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
             shown = f"{_num(interval.get('lower'))} - {_num(interval.get('upper'))}"
         rows.append(
             (
-                _e(name),
+                escape(name),
                 _num(value),
-                _e(units.get(name, "")),
+                escape(units.get(name, "")),
                 shown,
-                _e("fixed" if name in fixed else verdicts.get(name, "-")),
+                escape("fixed" if name in fixed else verdicts.get(name, "-")),
             )
         )
     parts.append(
-        _table(["parameter", "value", "unit", "95 % interval", "identifiable"], rows, numeric=(1,))
+        table_html(
+            ["parameter", "value", "unit", "95 % interval", "identifiable"], rows, numeric=(1,)
+        )
     )
     nrmse = document.get("nrmse", {})
     nrmse_rows = [
-        (_e(label), role, f"{value:.4f}")
+        (escape(label), role, f"{value:.4f}")
         for role in ("fit", "validation")
         for label, value in (nrmse.get(role) or {}).items()
     ]
     if nrmse_rows:
-        parts.append(_table(["run", "role", "NRMSE"], nrmse_rows, numeric=(2,)))
+        parts.append(table_html(["run", "role", "NRMSE"], nrmse_rows, numeric=(2,)))
     curves = document.get("curves") or []
     if curves:
         measured = [
@@ -401,7 +417,9 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
             measured, [np.asarray(c["model_db"]) for c in curves], [c["role"] for c in curves]
         )
         parts.append(
-            _figure(figure, "fit", "Measured and identified |G_DRV| per run (the paper's Fig. 6).")
+            figure_html(
+                figure, "fit", "Measured and identified |G_DRV| per run (the paper's Fig. 6)."
+            )
         )
     else:
         parts.append("<p class='missing'>The identification JSON holds no fit curves.</p>")
@@ -416,7 +434,7 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
             for name, p in profiles.items()
         }
         parts.append(
-            _figure(
+            figure_html(
                 profiles_figure(shaped), "profiles", "Likelihood profiles (the paper's Fig. 5)."
             )
         )
@@ -435,22 +453,25 @@ def _diagnosis_section(
         command = "dtid diagnose " + " ".join(p.name for p in recordings)
         parts.append(
             "<p class='missing'>Not diagnosed. Make it with <code>"
-            + _e(f"{command} --json {DIAGNOSIS_FILE} --plot diagnosis.png")
+            + escape(f"{command} --json {DIAGNOSIS_FILE} --plot diagnosis.png")
             + "</code>.</p>"
         )
         return "\n".join(parts)
     verdict = document.get("verdict", {})
     adequate = "yes" if document.get("adequate") else "no"
-    parts.append(f"<p>{_e(verdict.get('explanation', ''))}</p>")
+    parts.append(f"<p>{escape(verdict.get('explanation', ''))}</p>")
     parts.append(
-        _table(
+        table_html(
             ["", ""],
             [
                 ("the model explains the recordings", adequate),
-                ("mechanisms accepted", _e(", ".join(verdict.get("mechanisms") or []) or "none")),
+                (
+                    "mechanisms accepted",
+                    escape(", ".join(verdict.get("mechanisms") or []) or "none"),
+                ),
                 (
                     "indistinguishable here",
-                    _e(", ".join(verdict.get("indistinguishable") or []) or "none"),
+                    escape(", ".join(verdict.get("indistinguishable") or []) or "none"),
                 ),
             ],
             header=False,
@@ -459,11 +480,11 @@ def _diagnosis_section(
     bands = document.get("mismatch") or []
     if bands:
         parts.append(
-            _table(
+            table_html(
                 ["FRF", "amplitude / N*m", "band / Hz", "excess / dB", "p"],
                 [
                     (
-                        _e(b.get("frf", "")),
+                        escape(b.get("frf", "")),
                         f"{b.get('amplitude_nm', 0):g}",
                         f"{b.get('f_lo_hz', 0):.2f} - {b.get('f_hi_hz', 0):.2f}",
                         f"{b.get('excess_db', 0):+.2f}",
@@ -488,11 +509,11 @@ def _versions_section(
     recordings: list[Path], metadata: list[dict[str, Any] | None], live: bool
 ) -> str:
     now = software_versions()
-    rows = [(_e(name), _e(version)) for name, version in now.items()]
+    rows = [(escape(name), escape(version)) for name, version in now.items()]
     parts = [
         "<h2 id='versions'>Software and data</h2>",
         "<p>This report was made with:</p>",
-        _table(["package", "version"], rows),
+        table_html(["package", "version"], rows),
     ]
     data_rows = []
     for path, meta in zip(recordings, metadata, strict=True):
@@ -502,15 +523,15 @@ def _versions_section(
         signal_map = interface.get("signal_map") or {}
         data_rows.append(
             (
-                _e(path.name),
+                escape(path.name),
                 "(being written)" if live or not path.exists() else _sha256(path)[:16],
-                _e(recorded.get("drivetrain-id", "-")),
-                _e(f"{dbc.get('file', '-')} {str(dbc.get('sha256', ''))[:12]}"),
-                _e(f"{signal_map.get('file', '-')} {str(signal_map.get('sha256', ''))[:12]}"),
+                escape(recorded.get("drivetrain-id", "-")),
+                escape(f"{dbc.get('file', '-')} {str(dbc.get('sha256', ''))[:12]}"),
+                escape(f"{signal_map.get('file', '-')} {str(signal_map.get('sha256', ''))[:12]}"),
             )
         )
     parts.append(
-        _table(
+        table_html(
             ["recording", "SHA-256", "recorded with dtid", "DBC (SHA-256)", "signal map (SHA-256)"],
             data_rows,
         )
@@ -536,22 +557,24 @@ def _runs(recording: Recording) -> list:
     return list(find_runs(recording.series("test_torque")))
 
 
-def _figure(figure: Any, name: str, caption: str) -> str:
+def figure_html(figure: Any, name: str, caption: str) -> str:
+    """A matplotlib figure as an embedded PNG, with its id ``fig-NAME`` and caption."""
     buffer = io.BytesIO()
     figure.savefig(buffer, format="png", dpi=90)
     data = base64.b64encode(buffer.getvalue()).decode("ascii")
     return (
-        f"<figure id='fig-{name}'><img alt='{_e(name)}' src='data:image/png;base64,{data}'>"
-        f"<figcaption>{_e(caption)}</figcaption></figure>"
+        f"<figure id='fig-{name}'><img alt='{escape(name)}' src='data:image/png;base64,{data}'>"
+        f"<figcaption>{escape(caption)}</figcaption></figure>"
     )
 
 
-def _table(
+def table_html(
     headers: Sequence[str],
     rows: Sequence[Sequence[str]],
     header: bool = True,
     numeric: Sequence[int] = (),
 ) -> str:
+    """A table of cells already escaped (``numeric`` columns right-aligned)."""
     head = "<tr>" + "".join(f"<th>{h}</th>" for h in headers) + "</tr>" if header else ""
     body = "".join(
         "<tr>"
@@ -592,7 +615,8 @@ def _join(values: Any) -> str:
     return ", ".join(f"{v:.3f}" for v in values)
 
 
-def _e(text: Any) -> str:
+def escape(text: Any) -> str:
+    """Text for HTML."""
     return html.escape(str(text), quote=True)
 
 

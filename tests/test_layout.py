@@ -37,6 +37,7 @@ LAYERS = (
     ("dtid.identification.uncertainty",),
     ("dtid.identification.pipeline", "dtid.identification.setups", "dtid.identification.plots"),
     ("dtid.identification.diagnosis", "dtid.identification.html_report"),
+    ("dtid.identification.fleet",),
     ("dtid.identification.service",),
     ("dtid.workflow", "dtid"),
     ("dtid.cli",),

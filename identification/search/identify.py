@@ -403,6 +403,11 @@ def refine(
     return best, float(objective(best[None])[0])
 
 
+MIN_POPULATION = 5
+"""Fewest members of the differential evolution (scipy's least: its mutation draws four others),
+whatever ``popsize`` times the free parameters gives (one free parameter at a small popsize)."""
+
+
 def _global_search(
     objective: Objective,
     n_free: int,
@@ -419,7 +424,7 @@ def _global_search(
             progress("global", generation[0], settings.generations, float(intermediate_result.fun))
 
     population = stats.qmc.LatinHypercube(n_free, seed=settings.seed).random(
-        settings.popsize * n_free
+        max(settings.popsize * n_free, MIN_POPULATION)
     )
     parameterization = objective.parameterization
     for row, start in enumerate(starts):
