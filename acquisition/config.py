@@ -96,11 +96,15 @@ class OutputConfig:
         (ASAM MDF 4, written from a crash-safe BLF journal when the session ends).
     flush_period_s
         Longest time (wall) a received frame may stay unwritten in the log, s.
+    vehicle
+        The vehicle's name or VIN, written into each session's metadata (``dtid batch`` groups
+        a fleet's tests by it); empty: not said.
     """
 
     directory: Path = Path("dtid-runs")
     log_format: str = "blf"
     flush_period_s: float = 0.5
+    vehicle: str = ""
 
 
 @dataclass(frozen=True)

@@ -168,6 +168,7 @@ class Daemon:
                 session=session_dir.name,
                 started_s=clock.start_wall_s,
                 source="dtid acquire",
+                vehicle=config.output.vehicle,
                 interface=interface,
                 plan=plan.as_dict(),
                 bus={

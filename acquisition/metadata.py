@@ -6,7 +6,7 @@ engineer who finds it months later, or a fleet table, needs to. The metadata is 
 
 - ``schema``: :data:`SCHEMA`;
 - ``session``: the session's name; ``started_utc``: ISO 8601 time of its start; ``source``: what
-  wrote it (``dtid acquire``, ``dtid simulate``);
+  wrote it (``dtid acquire``, ``dtid simulate``); ``vehicle``: its name or VIN, if said;
 - ``software``: versions of drivetrain-id, python-can, cantools, numpy and Python;
 - ``interface``: the DBC and the signal map (file name and SHA-256 each) and the roles as
   ``MESSAGE.SIGNAL``;
@@ -66,6 +66,7 @@ def session_metadata(
     interface: VehicleInterface,
     plan: dict[str, Any] | None = None,
     bus: dict[str, Any] | None = None,
+    vehicle: str | None = None,
 ) -> dict[str, Any]:
     """The metadata of a session, before its integrity is known.
 
@@ -84,6 +85,8 @@ def session_metadata(
         The test plan as a dictionary (:meth:`dtid.acquisition.plan.TestPlan.as_dict`).
     bus
         Bus settings (interface, channel, time factor); None where no bus was used.
+    vehicle
+        The vehicle's name or VIN; None when not said.
     """
     started = datetime.datetime.fromtimestamp(started_s, datetime.UTC)
     return {
@@ -91,6 +94,7 @@ def session_metadata(
         "session": session,
         "started_utc": started.isoformat(timespec="milliseconds"),
         "source": source,
+        "vehicle": vehicle or None,
         "software": software_versions(),
         "interface": {
             "dbc": file_digest(interface.dbc_source) if interface.dbc_source else None,

@@ -230,7 +230,9 @@ def by_id(frames: list[can.Message], arbitration_id: int) -> list[can.Message]:
 @pytest.mark.parametrize("log_format", ["blf", "mf4"])
 def test_completed_test_records_every_frame_and_streams_it(tmp_path: Path, log_format: str) -> None:
     """Also for an .mf4 log (written from its BLF journal at the end), with its metadata."""
-    config = make_config(tmp_path, output={"log_format": log_format})
+    config = make_config(
+        tmp_path, output={"log_format": log_format, "vehicle": "WVWZZZ1JZ3W000001"}
+    )
     ecu = FakeEcu(config.bus.channel)
     subscriber = Subscriber(config.pipeline)
     subscriber.start()
@@ -293,6 +295,8 @@ def test_completed_test_records_every_frame_and_streams_it(tmp_path: Path, log_f
     )
     metadata = read_metadata(result.log_path)
     assert metadata is not None and metadata["source"] == "dtid acquire"
+    assert metadata["vehicle"] == "WVWZZZ1JZ3W000001"
+    assert metadata["outcome"]["status"] == "completed" and metadata["outcome"]["reason"] is None
     assert metadata["integrity"] == {"frames": len(log), "lost": 0, "closed": True, "failure": None}
     assert metadata["plan"] == config.test.as_dict()
     assert sorted(p.name for p in result.session_dir.iterdir()) == sorted(
