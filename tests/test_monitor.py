@@ -12,6 +12,7 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from test_worker import (  # the worker tests' simulated session and fake daemon
     BUDGET,
@@ -24,7 +25,11 @@ from test_worker import (  # the worker tests' simulated session and fake daemon
     session,  # noqa: F401  (a fixture)
 )
 
-from dtid.identification.service.monitor import MonitorState, render
+from dtid.dbc.loader import load_interface
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.service.live import LiveSession
+from dtid.identification.service.monitor import MonitorState, building_frf, render
 from dtid.identification.service.worker import WorkerOptions
 
 TMUX = shutil.which("tmux")
@@ -61,6 +66,35 @@ def test_the_page_follows_the_session(session: SimulatedSession) -> None:  # noq
     assert "phase done" in page and "test time left 0 s" in page
     assert "test ended: completed" in page
     assert len(state.seqs) == len(events)
+
+
+def test_the_chirp_being_swept_shows_its_frf_so_far(session: SimulatedSession) -> None:  # noqa: F811
+    """Fourteen seconds into the 20 s chirp 2 (1 -> 10.8 Hz swept, whole to 8 Hz): its |G_DRV|
+    so far is the whole chirp's where neither sits at a segment's edge, and the page draws it."""
+    events = session.events
+    start = next(i for i, e in enumerate(events) if e["kind"] == "phase" and e["chirp"] == 1)
+    live, state = LiveSession(events[0], load_interface()), MonitorState()
+    for event in events[: start + 57]:
+        state.apply_event(event)
+        if event["kind"] != "session":
+            live.apply(event)
+    chirp = PLAN.chirps[1]
+    building = building_frf(live, chirp, state.phase_t, state.last_t)
+    assert building is not None and 10.3 < building["to_hz"] < 11.3
+    for event in events[start + 57 :]:
+        live.apply(event)
+    data = live.test_data()
+    whole = estimate_frf(data, find_runs(data.test_torque)[1])
+    f, db = np.asarray(building["frequency_hz"]), np.asarray(building["drv_db"])
+    sweep = (chirp.f2_hz - chirp.f1_hz) / chirp.duration_s / live.resolution_hz  # Hz a segment
+    assert f[0] >= chirp.f1_hz and f[-1] <= building["to_hz"] - sweep + 1e-9 and len(f) > 20
+    inner = f >= chirp.f1_hz + sweep  # the whole chirp's own estimate is edgy below
+    difference = np.abs(db - np.interp(f, whole.frequency_hz, whole.drv_db))[inner]
+    assert inner.sum() > 10 and difference.max() < 0.5
+    state.building = building
+    page = "\n".join(render(state, width=110))
+    assert f"* = 10 N*m so far, to {building['to_hz']:.1f} Hz" in page
+    assert "*" in "".join(line[9:] for line in page.splitlines() if line[7:9] == " |")
 
 
 def test_an_abort_names_its_reason() -> None:
@@ -137,7 +171,7 @@ def test_the_monitor_in_tmux_shows_the_test_and_its_result(
     result = next(doc for topic, doc in messages if topic == "result")
     assert "session s1" in screen and "phase done" in screen
     assert "lost 0 | duplicated 0 | out of order 0" in screen
-    assert "(1 = 5 N*m, 2 = 10 N*m, 3 = 2 N*m)" in screen
+    assert "chirps (1 = 5 N*m, 2 = 10 N*m, 3 = 2 N*m)" in screen
     plot = [
         line for line in screen.splitlines() if " |" in line and line.strip()[0] in "-0123456789"
     ]

@@ -8,7 +8,9 @@ curses: it works over SSH, in tmux and in a log). The page shows:
 - the session, the phase and the test time left (bus time, from the plan);
 - the latest engine speed, mean torque and test torque, and the chirp's swept frequency;
 - the frame and error counters of the daemon's health events;
-- |G_DRV| of every finished chirp as the worker publishes it, drawn as a character plot;
+- |G_DRV| of every finished chirp as the worker publishes it, and of the chirp being swept as
+  far as it has come (re-estimated once a second from the samples received), drawn as a
+  character plot;
 - the worker's stage (identifying, its search's progress), the identified parameters, the
   validation NRMSE and the diagnosis's verdict;
 - how the test ended, with the abort's reason.
@@ -30,10 +32,14 @@ from typing import Any, TextIO
 import zmq
 
 from dtid.acquisition.config import PipelineConfig
-from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.plan import Chirp, TestPlan
 from dtid.acquisition.security import Security
 from dtid.acquisition.stream import ABORT_REASONS, KINDS, REPLAY_PAGE
-from dtid.errors import ConfigError
+from dtid.dbc.loader import load_interface
+from dtid.errors import AnalysisError, ConfigError, DtidError
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.runs import ChirpRun
+from dtid.identification.service.live import EventLog, LiveSession
 from dtid.identification.service.worker import endpoint
 
 PLOT_ROWS = 9
@@ -66,6 +72,7 @@ class MonitorState:
     result: dict[str, Any] | None = None
     diagnosis: dict[str, Any] | None = None
     messages: list[str] = field(default_factory=list)
+    building: dict[str, Any] | None = None
 
     def apply_event(self, event: dict[str, Any]) -> None:
         """Fold one daemon event of this session (any order; a repeated ``seq`` is ignored)."""
@@ -87,6 +94,7 @@ class MonitorState:
             if self.phase_t is None or event["t_s"] >= self.phase_t:
                 self.phase, self.phase_t = event["phase"], event["t_s"]
                 self.chirp, self.amplitude_nm = event.get("chirp"), event.get("amplitude_nm")
+                self.building = None
         elif kind == "samples":
             for role, entry in event.get("roles", {}).items():
                 if entry.get("t") and (self.last_t is None or entry["t"][-1] >= self.last_t):
@@ -154,7 +162,7 @@ def render(state: MonitorState, width: int = 100) -> list[str]:
             f"bad {health.get('bad_frames', 0)} | foreign tx {health.get('foreign_tx', 0)}"
         )
     lines.append("")
-    lines += _frf_plot(state.frfs, width)
+    lines += _frf_plot(state.frfs, state.building, width)
     lines.append("")
     lines.append(f"worker: {state.stage or '(no message yet)'}")
     if state.search and state.stage == "identifying":
@@ -197,8 +205,12 @@ def _phase_line(state: MonitorState) -> str:
     return text
 
 
-def _frf_plot(frfs: list[dict[str, Any]], width: int) -> list[str]:
-    """|G_DRV| of the finished chirps as a character plot, one mark per chirp."""
+def _frf_plot(
+    finished: list[dict[str, Any]], building: dict[str, Any] | None, width: int
+) -> list[str]:
+    """|G_DRV| of the finished chirps (a digit each) and of the one being swept (``*``) as a
+    character plot."""
+    frfs = finished + ([building] if building else [])
     if not frfs:
         return ["|G_DRV|: no chirp finished yet"]
     columns = max(width - 12, 20)
@@ -209,7 +221,7 @@ def _frf_plot(frfs: list[dict[str, Any]], width: int) -> list[str]:
     span = max(top - bottom, 1e-9)
     grid = [[" "] * columns for _ in range(PLOT_ROWS)]
     for index, estimate in enumerate(frfs):
-        mark = PLOT_MARKS[index % len(PLOT_MARKS)]
+        mark = "*" if estimate is building else PLOT_MARKS[index % len(PLOT_MARKS)]
         for f_hz, db in zip(estimate["frequency_hz"], estimate["drv_db"], strict=True):
             if not math.isfinite(db):
                 continue
@@ -217,9 +229,14 @@ def _frf_plot(frfs: list[dict[str, Any]], width: int) -> list[str]:
             row = round((top - db) / span * (PLOT_ROWS - 1))
             grid[row][column] = mark
     legend = ", ".join(
-        f"{PLOT_MARKS[i % len(PLOT_MARKS)]} = {e['amplitude_nm']:g} N*m" for i, e in enumerate(frfs)
+        f"{PLOT_MARKS[i % len(PLOT_MARKS)]} = {e['amplitude_nm']:g} N*m"
+        for i, e in enumerate(finished)
     )
-    lines = [f"|G_DRV| / dB of the finished chirps ({legend})"]
+    if building:
+        legend += (", " if legend else "") + (
+            f"* = {building['amplitude_nm']:g} N*m so far, to {building['to_hz']:.1f} Hz"
+        )
+    lines = [f"|G_DRV| / dB of the chirps ({legend})"]
     for row, cells in enumerate(grid):
         level = top - span * row / (PLOT_ROWS - 1)
         lines.append(f"{level:7.1f} |" + "".join(cells))
@@ -241,6 +258,55 @@ def _wrapped(text: str, width: int) -> list[str]:
     return [*lines, rest]
 
 
+def building_frf(
+    live: LiveSession, chirp: Chirp, start_t: float, now_t: float
+) -> dict[str, Any] | None:
+    """|G_DRV| of the chirp being swept, from its start to ``now_t``, over the band swept so far.
+
+    Parameters
+    ----------
+    live
+        The session's data so far.
+    chirp
+        The plan's chirp being swept.
+    start_t, now_t
+        Bus times of the chirp's start and of the latest sample, s.
+
+    Returns
+    -------
+    dict or None
+        ``amplitude_nm``, ``frequency_hz``, ``drv_db`` (up to one Welch segment's sweep below
+        the frequency reached, where the estimate is whole) and ``to_hz`` (the frequency
+        reached); None until two Welch segments of the sweep are in, or when the estimate fails
+        (too little coherence yet, a gap).
+    """
+    resolution = live.resolution_hz
+    tau = min(now_t - start_t, chirp.duration_s)
+    rate = (chirp.f2_hz - chirp.f1_hz) / chirp.duration_s
+    f_now = chirp.f1_hz + rate * tau
+    # a bin is whole once the sweep has passed it by one Welch segment (1 / resolution s)
+    band = (chirp.f1_hz + resolution, f_now - max(rate / resolution, resolution))
+    if tau < 2.0 / resolution or band[1] - band[0] < 4 * resolution:
+        return None
+    run = ChirpRun(
+        start_s=start_t - live.log_start_s,
+        end_s=start_t + tau - live.log_start_s,
+        amplitude_nm=chirp.amplitude_nm,
+        f1_hz=chirp.f1_hz,
+        f2_hz=f_now,
+    )
+    try:
+        estimate = estimate_frf(live.test_data(), run, resolution, band)
+    except (AnalysisError, ValueError):
+        return None
+    return {
+        "amplitude_nm": chirp.amplitude_nm,
+        "frequency_hz": estimate.frequency_hz.tolist(),
+        "drv_db": estimate.drv_db.tolist(),
+        "to_hz": f_now,
+    }
+
+
 class Monitor:
     """Subscribes to the daemon and the worker and keeps a :class:`MonitorState`.
 
@@ -260,6 +326,9 @@ class Monitor:
         self._req: zmq.Socket | None = None
         self._asked_at = 0.0
         self._replayed = False
+        self._log: EventLog | None = None
+        self._live: LiveSession | None = None
+        self._estimated_at = 0.0
 
     def _subscribe(self, address: str, name: str) -> zmq.Socket:
         socket = self._context.socket(zmq.SUB)
@@ -286,6 +355,7 @@ class Monitor:
             if self._req is not None and ready.get(self._req):
                 poller.unregister(self._req)
                 self._receive_replay(self._req.recv())
+        self._update_building()
 
     def _take(self, frames: list[bytes], daemon: bool) -> None:
         try:
@@ -304,7 +374,38 @@ class Monitor:
         new = event.get("kind") == "session" and event.get("session") != self.state.session
         if new and self.state.session is not None:
             self.state = MonitorState()
+            self._log = self._live = None
         self.state.apply_event(event)
+        if event.get("kind") not in KINDS or not isinstance(event.get("seq"), int):
+            return
+        if self._log is None:  # also before the session event itself: the replay's order
+            self._log = EventLog(str(event.get("session")))
+        if str(event.get("session")) != self._log.session:
+            return
+        self._log.add(event)
+        for ordered in self._log.take():  # the samples in seq order, as the worker keeps them
+            if ordered["kind"] == "session":
+                paths = ordered.get("interface") or {}
+                try:
+                    interface = load_interface(paths.get("dbc"), paths.get("signals"))
+                except DtidError:
+                    continue  # the page still shows the rest; only the FRF so far is lost
+                self._live = LiveSession(ordered, interface)
+            elif self._live is not None:
+                self._live.apply(ordered)
+
+    def _update_building(self) -> None:
+        """Re-estimate the swept chirp's FRF so far, at most once a second."""
+        state, live = self.state, self._live
+        if state.phase != "chirp" or live is None or state.plan is None or state.chirp is None:
+            return
+        if state.last_t is None or state.phase_t is None:
+            return
+        if time.monotonic() - self._estimated_at < 1.0:
+            return
+        self._estimated_at = time.monotonic()
+        chirp = state.plan.chirps[state.chirp]
+        state.building = building_frf(live, chirp, state.phase_t, state.last_t)
 
     def _ask_replay(self, from_seq: int = 0) -> None:
         """Ask the daemon's replay for its kept events, until it answers once."""
