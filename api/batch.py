@@ -10,6 +10,10 @@ and one table row. Nothing is read from a shared file system and nothing stays o
 so any scheduler's workers serve, and the client's network carries a few MB per test against
 a minute of computing.
 
+With ``--profile-points N`` the likelihood profiles of each identification become tasks of their
+own, one per free parameter, spread over the same cluster while the identification's task waits
+(it leaves its worker thread to them).
+
 Results: ``OUT/fleet.csv`` (one row per test: vehicle, date, status, NRMSEs, each parameter
 with its interval and verdict, the diagnosis), ``OUT/tests/<test>.json`` (the identification)
 and ``<test>.diagnosis.json``, and the fleet view (:mod:`dtid.identification.fleet`):
@@ -165,7 +169,8 @@ def identify_test(
     -------
     dict
         ``identification`` (the JSON document, or None), ``diagnosis`` (or None), ``error`` (a
-        user's mistake or an analysis that failed, or None), ``seconds``.
+        user's mistake or an analysis that failed, or None), ``seconds``, ``profile_tasks``
+        (the profiles computed as tasks of their own on the cluster).
     """
     import numba
 
@@ -183,6 +188,7 @@ def identify_test(
             path.write_bytes(content)
             paths[key] = path
         recordings = [paths[k] for k in files if ":" not in k]
+        spread = options.profile_points > 0 and _on_a_worker()
         try:
             report = identify(
                 recordings,
@@ -195,6 +201,7 @@ def identify_test(
                 settings=options.settings,
                 profile_points=options.profile_points,
                 span=options.span,
+                profile_map=_cluster_map if spread else None,
             )
             document = report.as_dict()
             diagnosis = (
@@ -209,7 +216,37 @@ def identify_test(
         "diagnosis": _renamed(diagnosis, renamed),
         "error": _renamed(error, renamed),
         "seconds": time.perf_counter() - start,
+        "profile_tasks": len((document or {}).get("profiles", {})) if spread else 0,
     }
+
+
+def _on_a_worker() -> bool:
+    """True inside a Dask worker's task (False when :func:`identify_test` is called directly)."""
+    try:
+        from distributed import get_worker
+
+        get_worker()
+    except (ImportError, ValueError):
+        return False
+    return True
+
+
+def _cluster_map(function: Callable[[str], Any], names: list[str]) -> list[Any]:
+    """The profiles of one identification as tasks of their own, spread over the cluster: the
+    identification's task leaves its worker thread to them while it waits."""
+    from distributed import worker_client
+
+    with worker_client() as client:
+        futures = client.map(_single_threaded, [function] * len(names), names, pure=False)
+        return list(client.gather(futures))
+
+
+def _single_threaded(function: Callable[[str], Any], name: str) -> Any:
+    """``function(name)`` with numba on one thread (one task per worker thread)."""
+    import numba
+
+    numba.set_num_threads(1)
+    return function(name)
 
 
 def _renamed(value: Any, names: Mapping[str, str]) -> Any:
@@ -315,6 +352,7 @@ def run_batch(
                     "diagnosis": None,
                     "error": f"internal error ({type(error).__name__}: {error}); please report it",
                     "seconds": 0.0,
+                    "profile_tasks": 0,
                 }
             rows[test.name] = _row(test, outcome)
             _write_documents(out / "tests", test, outcome)
@@ -339,6 +377,7 @@ def _row(test: TestSpec, outcome: Mapping[str, Any]) -> dict[str, Any]:
         "status": "ok" if document else "error",
         "error": outcome["error"] or "",
         "seconds": round(outcome["seconds"], 1),
+        "profile_tasks": outcome.get("profile_tasks", 0),
     }
     if document:
         nrmse = document["nrmse"]

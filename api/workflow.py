@@ -31,7 +31,7 @@ from dtid.errors import AnalysisError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate, estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.model.test_setup import MeasuredTest
-from dtid.identification.pipeline import IdentificationReport, run_identification
+from dtid.identification.pipeline import IdentificationReport, ProfileMap, run_identification
 from dtid.identification.samples.recording import Recording, load_recording
 from dtid.identification.search.identify import Progress, SearchSettings
 from dtid.simulator.parameters import DrivetrainParameters, load_parameters, reference_parameters
@@ -148,6 +148,7 @@ def identify(
     profile_points: int = 0,
     span: float | None = None,
     progress: Progress | None = None,
+    profile_map: ProfileMap | None = None,
 ) -> IdentificationReport:
     """Identify the drivetrain's parameters from chirp recordings (``dtid identify``).
 
@@ -176,6 +177,9 @@ def identify(
         car's ranges.
     progress
         Called as ``progress(stage, step, steps, best)`` while the search runs.
+    profile_map
+        How the profiles are computed (``dtid batch`` spreads them over its cluster); None:
+        one after another.
 
     Returns
     -------
@@ -200,4 +204,5 @@ def identify(
         profile_points=profile_points,
         progress=progress,
         span=span,
+        profile_map=profile_map,
     )

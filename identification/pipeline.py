@@ -13,10 +13,11 @@ run, so what follows the test (the daemon's last frames) does not matter either.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import logging
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -398,6 +399,7 @@ def run_identification(
     progress: Progress | None = None,
     resolution_hz: float = DEFAULT_RESOLUTION_HZ,
     span: float | None = None,
+    profile_map: ProfileMap | None = None,
 ) -> IdentificationReport:
     """Identify from measured tests, profile every free parameter and validate.
 
@@ -425,12 +427,42 @@ def run_identification(
         Relative half-width of the bounds around the prior where ``bounds`` names none (1 is
         the paper's +-100 %); None: +-100 % widened to a passenger car's ranges
         (:func:`dtid.identification.search.parameterization.passenger_car_bounds`).
+    profile_map
+        How the profiles are computed (:data:`ProfileMap`); None: one after another.
     """
     selection = identification_runs(tests, identify_amplitudes, resolution_hz)
     report = identify_runs(
-        selection, prior, fixed, bounds, settings, profile_points, progress, span
+        selection, prior, fixed, bounds, settings, profile_points, progress, span, profile_map
     )
     return report.validated(validation_runs(tests, identify_amplitudes, resolution_hz))
+
+
+ProfileMap = Callable[[Callable[[str], Profile], list[str]], list[Profile]]
+"""Computes the profiles of the named parameters, in order, with the function given: a map
+over an executor (``dtid batch`` spreads them over its Dask cluster). None: one after another
+here."""
+
+
+def _profile_one(
+    polish_objective: Objective,
+    search_objective: Objective,
+    measured_db: list[np.ndarray],
+    optimum_unit: np.ndarray,
+    points: int,
+    seed: int,
+    name: str,
+) -> Profile:
+    """One parameter's profile (a module-level function, so that it travels to other
+    processes)."""
+    return profile(
+        polish_objective,
+        measured_db,
+        name,
+        optimum_unit,
+        points=points,
+        seed=seed,
+        search_objective=search_objective,
+    )
 
 
 def identify_runs(
@@ -442,6 +474,7 @@ def identify_runs(
     profile_points: int = 5,
     progress: Progress | None = None,
     span: float | None = None,
+    profile_map: ProfileMap | None = None,
 ) -> IdentificationReport:
     """Identify from held-out identification runs and profile; no validation yet.
 
@@ -491,18 +524,22 @@ def identify_runs(
             [t.model_test(runs) for t, runs in zip(tests, ident, strict=True)],
             [[t.estimates[i].drv_db for i in runs] for t, runs in zip(tests, ident, strict=True)],
         )
-        for step, name in enumerate(par.free):
-            if progress:
-                progress("profile", step + 1, len(par.free), result.objective)
-            profiles[name] = profile(  # on the cheaper objectives of the search's stages 1 and 2
-                objective.replacing(realizations=settings.polish_realizations),
-                measured_db,
-                name,
-                result.unit,
-                points=profile_points,
-                seed=settings.seed,
-                search_objective=objective.replacing(realizations=settings.global_realizations),
-            )
+        one = functools.partial(  # on the cheaper objectives of the search's stages 1 and 2
+            _profile_one,
+            objective.replacing(realizations=settings.polish_realizations),
+            objective.replacing(realizations=settings.global_realizations),
+            measured_db,
+            result.unit,
+            profile_points,
+            settings.seed,
+        )
+        if profile_map is None:
+            for step, name in enumerate(par.free):
+                if progress:
+                    progress("profile", step + 1, len(par.free), result.objective)
+                profiles[name] = one(name)
+        else:
+            profiles = dict(zip(par.free, profile_map(one, list(par.free)), strict=True))
     return IdentificationReport(
         result,
         with_structure(profiles, reasons),

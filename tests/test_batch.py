@@ -104,3 +104,31 @@ def test_the_fleet_view_finds_wear_and_the_odd_vehicle(fleet: dict) -> None:
     page = (fleet["out"] / "fleet.html").read_text()
     assert "id='fig-fleet'" in page and "van-c" in page and "idle" in page
     assert (fleet["out"] / "fleet.png").stat().st_size > 20_000
+
+
+@pytest.mark.slow
+def test_profiles_are_spread_over_the_cluster_and_match_dtid_identify(
+    fleet: dict, tmp_path: Path
+) -> None:
+    """c12 and eps12 free, three-point profiles: two profile tasks of their own, and the same
+    intervals and verdicts as `dtid identify` computing them one after the other."""
+    free_two = [f for f in FREE if not f.startswith("eps12")]
+    budget = [*BUDGET[:-1], "3"]  # --profile-points 3
+    path = fleet["tests"][0]
+    out = tmp_path / "out"
+    assert main(["batch", str(path), "--out", str(out), "--workers", "2", "--fix", *free_two,
+                 *budget]) == 0  # fmt: skip
+    with (out / "fleet.csv").open() as file:
+        (row,) = list(csv.DictReader(file))
+    assert row["status"] == "ok" and row["profile_tasks"] == "2"
+    single = tmp_path / "single.json"
+    assert main(["identify", str(path), "--json", str(single), "--fix", *free_two, *budget]) == 0
+    expected = json.loads(single.read_text())
+    batched = json.loads((out / "tests" / "test0.json").read_text())
+    assert set(batched["intervals"]) == {"c12", "eps12"}
+    for name in ("c12", "eps12"):
+        for side in ("lower", "upper"):
+            assert batched["intervals"][name][side] == pytest.approx(
+                expected["intervals"][name][side], rel=1e-9
+            )
+        assert batched["identifiable"][name] == expected["identifiable"][name]
