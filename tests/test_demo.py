@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -25,6 +26,11 @@ def test_demo_identifies_the_reference_vehicle_and_writes_its_files(
     (session,) = [p for p in out.iterdir() if p.is_dir()]
     assert (session / f"{session.name}.blf").stat().st_size > 0
     assert (session / "identification.png").exists() and (out / "frf.png").exists()
+    # the session's report, rewritten from the closed log: its metadata, outcome and hash
+    page = (session / "report.html").read_text()
+    assert "closed cleanly" in page and "<td>ended</td><td>completed</td>" in page
+    log_hash = hashlib.sha256((session / f"{session.name}.blf").read_bytes()).hexdigest()
+    assert log_hash[:16] in page and "(being written)" not in page
     runs = json.loads((out / "frf.json").read_text())["runs"]
     assert [round(r["amplitude_nm"]) for r in runs] == [5, 10, 2]
     document = json.loads((session / "identification.json").read_text())
