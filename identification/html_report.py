@@ -261,8 +261,8 @@ def _test_section(
     parts = ["<h2 id='test'>The test</h2>"]
     if live:
         parts.append(
-            "<p>Written by the worker while the session ran, from its live data; "
-            "<code>dtid report SESSION_DIR</code> rewrites it from the closed files.</p>"
+            "<p>Written by the worker while the session ran, from its live data; it is "
+            "rewritten from the files once the daemon has closed the log.</p>"
         )
     for recording, meta in zip(recordings, metadata, strict=True):
         integrity = recording.integrity

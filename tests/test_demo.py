@@ -26,7 +26,7 @@ def test_demo_identifies_the_reference_vehicle_and_writes_its_files(
     (session,) = [p for p in out.iterdir() if p.is_dir()]
     assert (session / f"{session.name}.blf").stat().st_size > 0
     assert (session / "identification.png").exists() and (out / "frf.png").exists()
-    # the session's report, rewritten from the closed log: its metadata, outcome and hash
+    # the session's report, which the worker rewrote from the log once the daemon closed it
     page = (session / "report.html").read_text()
     assert "closed cleanly" in page and "<td>ended</td><td>completed</td>" in page
     log_hash = hashlib.sha256((session / f"{session.name}.blf").read_bytes()).hexdigest()

@@ -34,7 +34,7 @@ from dtid.dbc.loader import load_interface
 from dtid.errors import AnalysisError, RecordingError
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
-from dtid.identification.html_report import REPORT_FILE, gather, write_report
+from dtid.identification.html_report import REPORT_FILE
 from dtid.identification.plots import plot_frf
 from dtid.identification.samples.recording import load_recording
 from dtid.identification.search.identify import SearchSettings
@@ -154,10 +154,7 @@ def run(args: argparse.Namespace) -> int:
         raise AnalysisError(f"the worker did not identify (exit status {worker.exitcode})")
     _show(identification, {**truth.as_dict(), **theta_from_parameters(truth)})
     _plot_frf(result.log_path, args.out)
-    # the worker wrote it from its live data; from the closed log now, as `dtid report` does
-    inputs = gather([result.session_dir], load_interface())
-    report = write_report(inputs, result.session_dir / REPORT_FILE)
-    print(f"report (one HTML page to forward): {report}")
+    print(f"report (one HTML page to forward): {result.session_dir / REPORT_FILE}")
     return 0
 
 

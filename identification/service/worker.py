@@ -172,6 +172,8 @@ class _Session:
     last_progress_wall: float = 0.0
     finished: bool = False
     status: str = ""
+    report_inputs: tuple[Path, Path | None] | None = None
+    """The identification and diagnosis JSONs the session's report was made of."""
 
 
 class Worker:
@@ -209,6 +211,7 @@ class Worker:
         self._replayed = False
         self._pub: zmq.Socket | None = None
         self._poller = zmq.Poller()
+        self._report_threads: list[threading.Thread] = []
         self.listeners: list[Callable[[str, dict[str, Any]], None]] = []
         """Called with each message sent (for the command's terminal output and for tests)."""
 
@@ -262,6 +265,8 @@ class Worker:
                     return 2 if "error" in self.finished.values() else 0
             return 0
         finally:
+            for thread in self._report_threads:  # bounded: each waits CLOSE_WAIT_S at most
+                thread.join(CLOSE_WAIT_S + 10.0)
             self._flush()
             self._close_req()
             sub.close(linger=0)
@@ -552,6 +557,10 @@ class Worker:
         from dtid.identification.html_report import REPORT_FILE, ReportInputs, write_report
 
         path = live.log_path.parent / REPORT_FILE
+        session.report_inputs = (
+            self.options.json_path or live.log_path.parent / "identification.json",
+            diagnosis,
+        )
         figure = diagnosis.with_suffix(".png") if diagnosis is not None else None
         try:
             inputs = ReportInputs(
@@ -601,6 +610,15 @@ class Worker:
         self.sessions.pop(session.id, None)
         if session.live is not None:
             self._progress(session, "done" if status == "completed" else status)
+        if session.live is not None and session.report_inputs is not None:
+            thread = threading.Thread(
+                target=_rewrite_report,
+                args=(session.live, *session.report_inputs),
+                name=f"report-{session.id}",
+                daemon=True,
+            )
+            thread.start()
+            self._report_threads.append(thread)
 
     # --- results out --------------------------------------------------------------------------
 
@@ -648,3 +666,39 @@ class Worker:
 def _read_json(path: Path) -> dict[str, Any]:
     """A JSON document the worker wrote itself."""
     return dict(json.loads(path.read_text()))
+
+
+CLOSE_WAIT_S = 30.0
+"""Longest wall time the worker waits, after a session's end, for the daemon to close its log
+(an .mf4 session's conversion included) before it rewrites the report from the files."""
+
+
+def _rewrite_report(live: LiveSession, identification: Path, diagnosis: Path | None) -> None:
+    """The session's report again, from the closed log, once the daemon's metadata says it is
+    closed (the end event comes before the close). Without metadata beside the log (a log that
+    is not the daemon's) the live report stays."""
+    from dtid.acquisition.metadata import read_metadata
+    from dtid.identification.html_report import REPORT_FILE, gather, write_report
+
+    log = live.log_path
+    journal = log.with_name(f"{log.stem}.journal.blf")
+    deadline = time.monotonic() + CLOSE_WAIT_S
+    while True:
+        try:
+            metadata, being_written = read_metadata(log if log.exists() else journal), False
+        except DtidError:  # an .mf4 file still being written from its journal
+            metadata, being_written = None, True
+        if metadata is None and not being_written:
+            return
+        if metadata is not None and (metadata.get("integrity") or {}).get("closed"):
+            break
+        if time.monotonic() > deadline:
+            logger.warning("the daemon did not close %s within %.0f s", log, CLOSE_WAIT_S)
+            return
+        time.sleep(0.2)
+    try:
+        inputs = gather([log], live.interface, identification, diagnosis)
+        inputs.title = log.parent.name
+        write_report(inputs, log.parent / REPORT_FILE)
+    except DtidError as error:
+        logger.warning("the session's report from its closed log: %s", error)
