@@ -132,3 +132,29 @@ def test_profiles_are_spread_over_the_cluster_and_match_dtid_identify(
                 expected["intervals"][name][side], rel=1e-9
             )
         assert batched["identifiable"][name] == expected["identifiable"][name]
+
+
+def test_an_existing_scheduler_serves(fleet: dict, tmp_path: Path) -> None:
+    """`--scheduler ADDRESS`: the batch runs on a cluster somebody else started (here a
+    one-worker local one), and gives the local cluster's result."""
+    from distributed import LocalCluster
+
+    path = fleet["tests"][3]
+    out = tmp_path / "out"
+    with LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=None) as cluster:
+        assert main(["batch", str(path), "--out", str(out), "--scheduler",
+                     cluster.scheduler_address, "--fix", *FREE, *BUDGET]) == 0  # fmt: skip
+    with (out / "fleet.csv").open() as file:
+        (row,) = list(csv.DictReader(file))
+    local = fleet["rows"][3]  # the same test in the local cluster's batch
+    assert row["status"] == "ok" and row["vehicle"] == "van-b"
+    assert float(row["c12"]) == pytest.approx(float(local["c12"]), rel=1e-9)
+
+
+def test_an_unreachable_scheduler_is_named(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    recording = tmp_path / "van" / "t.blf"
+    recording.parent.mkdir()
+    assert main(["simulate", str(recording), "--duration", "20"]) == 0
+    assert main(["batch", str(recording), "--scheduler", "tcp://127.0.0.1:9", "--out",
+                 str(tmp_path / "out")]) == 2  # fmt: skip
+    assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in capsys.readouterr().err
