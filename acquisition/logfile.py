@@ -80,6 +80,16 @@ _CONTROL_CHARACTER = re.compile(r"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 _BLF_ERRORS = (BLFParseError, struct.error, zlib.error, ValueError, EOFError)
 
 
+def recordings_in(folder: str | os.PathLike[str]) -> list[Path]:
+    """The recordings in a folder (a session directory): its files of a supported format, by
+    name; hidden and partial files left out."""
+    return sorted(
+        p
+        for p in Path(folder).iterdir()
+        if p.is_file() and p.suffix.lower() in SUPPORTED_SUFFIXES and not p.name.startswith(".")
+    )
+
+
 def _reason(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from dtid.acquisition.logfile import SUPPORTED_SUFFIXES
+from dtid.acquisition.logfile import SUPPORTED_SUFFIXES, recordings_in
 from dtid.acquisition.metadata import read_metadata
 from dtid.errors import ConfigError, DtidError, RecordingError
 from dtid.identification.fleet import fleet_view
@@ -108,13 +108,7 @@ def find_tests(paths: Sequence[str | os.PathLike[str]]) -> list[TestSpec]:
     tests, names = [], set()
     for argument in map(Path, paths):
         if argument.is_dir():
-            recordings = tuple(
-                sorted(
-                    p
-                    for p in argument.iterdir()
-                    if p.suffix.lower() in SUPPORTED_SUFFIXES and not p.name.startswith(".")
-                )
-            )
+            recordings = tuple(recordings_in(argument))
             if not recordings:
                 raise RecordingError(
                     f"{argument} holds no recording ({', '.join(SUPPORTED_SUFFIXES)})"

@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from dtid.acquisition.logfile import SUPPORTED_SUFFIXES
+from dtid.acquisition.logfile import SUPPORTED_SUFFIXES, recordings_in
 from dtid.acquisition.metadata import read_metadata, software_versions
 from dtid.dbc.interface import VehicleInterface
 from dtid.errors import DtidError, RecordingError
@@ -124,11 +124,7 @@ def gather(
             raise RecordingError(f"{path} does not exist; give a session directory or recordings")
     if len(paths) == 1 and paths[0].is_dir():
         folder = paths[0]
-        recordings = sorted(
-            p
-            for p in folder.iterdir()
-            if p.suffix.lower() in SUPPORTED_SUFFIXES and not p.name.startswith(".")
-        )
+        recordings = recordings_in(folder)
         if not recordings:
             raise RecordingError(
                 f"session directory {folder} holds no recording ({', '.join(SUPPORTED_SUFFIXES)})"
