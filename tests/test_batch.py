@@ -52,7 +52,7 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
     )
     out = root / "out"
     assert main(["batch", *map(str, tests), str(broken), "--out", str(out), "--workers", "2",
-                 "--fix", *FREE, *BUDGET]) == 0  # fmt: skip
+                 "--diagnose", "--fix", *FREE, *BUDGET]) == 0  # fmt: skip
     with (out / "fleet.csv").open() as file:
         rows = list(csv.DictReader(file))
     return {"tests": tests, "broken": broken, "out": out, "rows": rows}
@@ -71,6 +71,13 @@ def test_every_test_is_a_row_with_its_vehicle_and_date(fleet: dict) -> None:
     broken = rows[6]
     assert broken["status"] == "error" and "idle" in broken["test"]
     assert broken["error"]  # the reason, as dtid identify would say it
+    # --diagnose: each test's mismatch map, in its row and its JSON
+    for row in rows[:6]:
+        document = json.loads(
+            (fleet["out"] / "tests" / f"{row['test']}.diagnosis.json").read_text()
+        )
+        assert row["adequate"] == str(document["adequate"])
+        assert int(row["mismatch_bands"]) == len(document["mismatch"])
 
 
 def test_a_task_gives_what_dtid_identify_gives(fleet: dict, tmp_path: Path) -> None:
