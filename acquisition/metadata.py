@@ -96,18 +96,23 @@ def session_metadata(
         "source": source,
         "vehicle": vehicle or None,
         "software": software_versions(),
-        "interface": {
-            "dbc": file_digest(interface.dbc_source) if interface.dbc_source else None,
-            "signal_map": file_digest(interface.signal_map.source),
-            "roles": {
-                role: f"{spec.message}.{spec.signal}"
-                for role, spec in sorted(interface.signal_map.roles.items())
-            },
-        },
+        "interface": interface_metadata(interface),
         "plan": plan,
         "bus": bus,
         "integrity": {"frames": 0, "lost": 0, "closed": False, "failure": None},
         "outcome": None,
+    }
+
+
+def interface_metadata(interface: VehicleInterface) -> dict[str, Any]:
+    """The metadata's ``interface``: the DBC and signal map (file, SHA-256) and the roles."""
+    return {
+        "dbc": file_digest(interface.dbc_source) if interface.dbc_source else None,
+        "signal_map": file_digest(interface.signal_map.source),
+        "roles": {
+            role: f"{spec.message}.{spec.signal}"
+            for role, spec in sorted(interface.signal_map.roles.items())
+        },
     }
 
 
@@ -119,6 +124,27 @@ def with_integrity(
         **metadata,
         "integrity": {"frames": frames, "lost": lost, "closed": closed, "failure": failure},
     }
+
+
+def journal_path(log: str | os.PathLike[str]) -> Path:
+    """The crash-safe BLF journal an .mf4 session is recorded in until it ends
+    (:class:`dtid.acquisition.recorder.Recorder`): ``<stem>.journal.blf`` beside it."""
+    log = Path(log)
+    return log.with_name(f"{log.stem}.journal.blf")
+
+
+def session_log_metadata(log: str | os.PathLike[str]) -> dict[str, Any] | None:
+    """The metadata of a session's log, or of its journal while an .mf4 session is still being
+    recorded or converted (:func:`read_metadata` of whichever exists).
+
+    Raises
+    ------
+    RecordingError
+        As :func:`read_metadata` (an .mf4 file still being written is unreadable).
+    """
+    log = Path(log)
+    journal = journal_path(log)
+    return read_metadata(log if log.exists() or not journal.exists() else journal)
 
 
 def sidecar_path(log: str | os.PathLike[str]) -> Path:
@@ -184,7 +210,7 @@ def interface_differences(metadata: dict[str, Any], interface: VehicleInterface)
     signal); empty when they agree or the metadata does not say.
     """
     recorded = metadata.get("interface") or {}
-    now = session_metadata(session="", started_s=0.0, source="", interface=interface)["interface"]
+    now = interface_metadata(interface)
     differences = []
     for key, what in (("dbc", "DBC"), ("signal_map", "signal map")):
         then, current = recorded.get(key), now[key]

@@ -49,7 +49,7 @@ import can
 from can.io.blf import FILE_HEADER_SIZE
 from can.io.generic import FileIOMessageWriter
 
-from dtid.acquisition.metadata import sidecar_path, with_integrity, write_sidecar
+from dtid.acquisition.metadata import journal_path, sidecar_path, with_integrity, write_sidecar
 from dtid.acquisition.mf4 import BulkMF4Writer, frame_count
 from dtid.errors import RecordingError
 
@@ -182,7 +182,7 @@ class Recorder:
             )
         if suffix == ".mf4" and path.exists():
             raise RecordingError(f"log {path} exists already; it is never overwritten")
-        self.journal = path.with_name(f"{path.stem}.journal.blf") if suffix == ".mf4" else None
+        self.journal = journal_path(path) if suffix == ".mf4" else None
         written = self.journal or path
         mode, encoding = ("xb", None) if written.suffix == ".blf" else ("x", "ascii")
         try:

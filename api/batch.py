@@ -256,7 +256,10 @@ def _renamed(value: Any, names: Mapping[str, str]) -> Any:
     return value
 
 
-def _task_files(test: TestSpec, options: BatchOptions) -> tuple[dict[str, bytes], dict[str, str]]:
+def task_files(test: TestSpec, options: BatchOptions) -> tuple[dict[str, bytes], dict[str, str]]:
+    """What :func:`identify_test` is sent for a test: its files' bytes by key (the recordings,
+    then ``dbc:``, ``signals:``, ``vehicle:``, ``prior:`` files) and each recording key's path on
+    the client."""
     files, originals = {}, {}
     for path in test.recordings:
         key = path.name if path.name not in files else f"{len(files)}-{path.name}"
@@ -333,7 +336,7 @@ def run_batch(
     try:
         futures = {}
         for test in tests:
-            files, originals = _task_files(test, options)
+            files, originals = task_files(test, options)
             future = client.submit(identify_test, test.name, files, originals, options, pure=False)
             futures[future] = test
         for future in as_completed(futures):

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from dtid.acquisition.plan import TestPlan
-from dtid.batch import BatchOptions, _task_files, find_tests, identify_test, run_batch
+from dtid.batch import BatchOptions, find_tests, identify_test, run_batch, task_files
 from dtid.cli import main as dtid
 from dtid.identification.search.identify import SearchSettings
 
@@ -56,7 +56,7 @@ def main() -> None:
             dtid(["simulate", str(path), "--duration", f"{duration:g}", "--seed", str(index)])
             paths.append(path)
         tests = find_tests(paths)
-        files, originals = _task_files(tests[0], options)
+        files, originals = task_files(tests[0], options)
         sent = len(pickle.dumps((tests[0].name, files, originals, options)))
         returned = len(pickle.dumps(identify_test(tests[0].name, files, originals, options)))
         for workers in args.workers:

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from dtid.acquisition.logfile import SUPPORTED_SUFFIXES, recordings_in
-from dtid.acquisition.metadata import read_metadata, software_versions
+from dtid.acquisition.metadata import session_log_metadata, software_versions
 from dtid.dbc.interface import VehicleInterface
 from dtid.errors import DtidError, RecordingError
 from dtid.identification.frf.closed_loop import estimate_frf
@@ -540,9 +540,8 @@ def _versions_section(
 
 def _metadata(path: Path) -> dict[str, Any] | None:
     """The recording's metadata; during an .mf4 session, its journal's."""
-    journal = path.with_name(f"{path.stem}.journal.blf")
     try:
-        return read_metadata(path if path.exists() or not journal.exists() else journal)
+        return session_log_metadata(path)
     except RecordingError:
         return None
 

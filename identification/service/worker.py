@@ -677,15 +677,14 @@ def _rewrite_report(live: LiveSession, identification: Path, diagnosis: Path | N
     """The session's report again, from the closed log, once the daemon's metadata says it is
     closed (the end event comes before the close). Without metadata beside the log (a log that
     is not the daemon's) the live report stays."""
-    from dtid.acquisition.metadata import read_metadata
+    from dtid.acquisition.metadata import session_log_metadata
     from dtid.identification.html_report import REPORT_FILE, gather, write_report
 
     log = live.log_path
-    journal = log.with_name(f"{log.stem}.journal.blf")
     deadline = time.monotonic() + CLOSE_WAIT_S
     while True:
         try:
-            metadata, being_written = read_metadata(log if log.exists() else journal), False
+            metadata, being_written = session_log_metadata(log), False
         except DtidError:  # an .mf4 file still being written from its journal
             metadata, being_written = None, True
         if metadata is None and not being_written:
