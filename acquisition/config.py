@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.plan import PLAN_FILE_KEYS, TestPlan, in_rounds, plan_from_file
 from dtid.acquisition.recorder import SUFFIXES
 from dtid.errors import ConfigError
 
@@ -250,6 +250,40 @@ def _check(config: AcquisitionConfig) -> None:
         )
 
 
+def _test_section(path: Path, values: dict[str, Any]) -> dict[str, Any]:
+    """``[test]`` with its ``plan`` file and ``repeats`` resolved into :class:`TestPlan` keys.
+
+    ``plan = "plan.json"`` takes the amplitudes, repeats, duration, band and validation chirp of
+    a ``dtid plan --json`` file (those keys may then not be given as well); ``repeats`` (an
+    integer, or one per amplitude) repeats ``amplitudes_nm`` in rounds
+    (:func:`dtid.acquisition.plan.in_rounds`).
+    """
+    where = f"{path}: [test]"
+    if "plan" in values:
+        file = values.pop("plan")
+        if not isinstance(file, str) or not file:
+            raise ConfigError(f"{where} plan: expected the path of a dtid plan JSON file")
+        clash = [key for key in (*PLAN_FILE_KEYS, "settle_s", "pause_s") if key in values]
+        if clash:
+            raise ConfigError(
+                f"{where}: {clash[0]!r} and plan are both given; the plan file sets it "
+                "(remove one of them)"
+            )
+        period = values.get("request_period_s", TestPlan().request_period_s)
+        plan = plan_from_file(path.parent / Path(file).expanduser(), period)
+        values.update(plan.as_dict())
+    if "repeats" in values:
+        repeats = values.pop("repeats")
+        amplitudes = values.get("amplitudes_nm", list(TestPlan().amplitudes_nm))
+        if not isinstance(amplitudes, list):
+            raise ConfigError(f"{where} amplitudes_nm: expected a list of numbers")
+        try:
+            values["amplitudes_nm"] = list(in_rounds(amplitudes, repeats))
+        except (ConfigError, TypeError, ValueError) as error:
+            raise ConfigError(f"{where} {error}") from None
+    return values
+
+
 def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
     """Read a configuration file; None gives the defaults.
 
@@ -270,6 +304,8 @@ def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path} is not valid TOML: {error}") from None
     sections = {}
+    if isinstance(document.get("test"), dict):
+        document["test"] = _test_section(path, dict(document["test"]))
     for section, values in document.items():
         if section not in _SECTIONS:
             raise ConfigError(f"{path}: unknown section [{section}]; known: {', '.join(_SECTIONS)}")

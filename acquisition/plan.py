@@ -10,8 +10,11 @@ and the frames written for the tool's messages agree sample for sample.
 
 from __future__ import annotations
 
+import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -149,6 +152,72 @@ class TestPlan:
             [[c.start_s, c.duration_s, c.f1_hz, c.f2_hz, c.amplitude_nm] for c in self.chirps],
             dtype=np.float64,
         )
+
+
+def in_rounds(amplitudes_nm: Sequence[float], repeats: int | Sequence[int]) -> tuple[float, ...]:
+    """Chirp amplitudes of a test that repeats each level: in rounds, each round ascending
+    (5, 10, 5, 10, 10 for levels 5 and 10 repeated 2 and 3 times), so a drift of the idle over
+    the test spreads over every level alike, N*m.
+
+    Raises
+    ------
+    ConfigError
+        If ``repeats`` is not a positive integer or one per level.
+    """
+    levels = [float(a) for a in amplitudes_nm]
+    counts = [repeats] * len(levels) if isinstance(repeats, int) else list(repeats)
+    if len(counts) != len(levels) or not all(
+        isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in counts
+    ):
+        raise ConfigError(
+            f"repeats must be a positive integer or one per amplitude ({len(levels)}), got "
+            f"{repeats!r}"
+        )
+    order = sorted(range(len(levels)), key=lambda i: levels[i])
+    return tuple(levels[i] for r in range(max(counts)) for i in order if r < counts[i])
+
+
+PLAN_FILE_KEYS = ("amplitudes_nm", "repeats", "duration_s", "f1_hz", "f2_hz", "validation_nm")
+"""Keys of a plan file's ``plan`` entry (``dtid plan --json``) that the test takes; ``settle_s``
+and ``pause_s`` are taken too when present."""
+
+
+def plan_from_file(path: str | Path, request_period_s: float = 0.01) -> TestPlan:
+    """The test plan of a ``dtid plan --json`` file (its ``plan`` entry).
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read, is not JSON, or its ``plan`` lacks a key or holds a bad value.
+    """
+    path = Path(path)
+    try:
+        document = json.loads(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"cannot read the plan file {path}: {error.strerror}") from None
+    except json.JSONDecodeError as error:
+        raise ConfigError(f"plan file {path} is not JSON: {error}") from None
+    entry = document.get("plan") if isinstance(document, dict) else None
+    if not isinstance(entry, dict):
+        raise ConfigError(f"plan file {path} has no 'plan' entry; write one with dtid plan --json")
+    missing = [key for key in PLAN_FILE_KEYS if key not in entry]
+    if missing:
+        raise ConfigError(f"plan file {path}: its plan has no {missing[0]!r}")
+    try:
+        numbers = {
+            key: float(entry[key])
+            for key in ("duration_s", "f1_hz", "f2_hz", "validation_nm", "settle_s", "pause_s")
+            if key in entry
+        }
+        amplitudes = in_rounds([float(a) for a in entry["amplitudes_nm"]], entry["repeats"])
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"plan file {path}: {error}") from None
+    except ConfigError as error:
+        raise ConfigError(f"plan file {path}: {error}") from None
+    try:
+        return TestPlan(amplitudes_nm=amplitudes, request_period_s=request_period_s, **numbers)
+    except ConfigError as error:
+        raise ConfigError(f"plan file {path}: {error}") from None
 
 
 @numba.njit(cache=True)

@@ -8,9 +8,10 @@ from pathlib import Path
 
 from dtid.acquisition.logfile import write_log
 from dtid.acquisition.metadata import session_metadata
-from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.plan import TestPlan, plan_from_file
 from dtid.cli.commands.common import add_interface_options, positive_float
 from dtid.dbc.loader import load_interface
+from dtid.errors import ConfigError
 from dtid.simulator.controller import IdleController
 from dtid.simulator.mechanisms import BY_NAME, Effects, parse_effect
 from dtid.simulator.parameters import load_parameters, reference_parameters
@@ -57,6 +58,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=IdleController().setpoint_rpm,
         help="idle speed set-point, rpm",
     )
+    parser.add_argument(
+        "--plan",
+        type=Path,
+        help="simulate the test of a dtid plan JSON file (its amplitudes, repeats, duration, "
+        "band and validation chirp; instead of --amplitudes, --f1, --f2, --duration)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and combustion")
     parser.add_argument(
         "--clean", action="store_true", help="no combustion variation and no sensor noise"
@@ -78,13 +85,28 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the recording."""
     parameters = load_parameters(args.params) if args.params else reference_parameters()
-    plan = TestPlan(
-        amplitudes_nm=tuple(args.amplitudes),
-        validation_nm=0.0,
-        f1_hz=args.f1,
-        f2_hz=args.f2,
-        duration_s=args.duration,
-    )
+    if args.plan is not None:
+        given = [
+            option
+            for option, value, default in (
+                ("--amplitudes", args.amplitudes, list(VALIDATION_LAST)),
+                ("--f1", args.f1, _DEFAULTS.f1_hz),
+                ("--f2", args.f2, _DEFAULTS.f2_hz),
+                ("--duration", args.duration, _DEFAULTS.duration_s),
+            )
+            if value != default
+        ]
+        if given:
+            raise ConfigError(f"{given[0]} and --plan both set the test: give one of them")
+        plan = plan_from_file(args.plan)
+    else:
+        plan = TestPlan(
+            amplitudes_nm=tuple(args.amplitudes),
+            validation_nm=0.0,
+            f1_hz=args.f1,
+            f2_hz=args.f2,
+            duration_s=args.duration,
+        )
     controller = IdleController(setpoint_rpm=args.setpoint)
     effects = Effects({k: v for text in args.effect for k, v in parse_effect(text).items()})
     options = (
@@ -109,6 +131,6 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"wrote {args.output}: {count} frames, {plan.end_s:.0f} s, chirps at "
-        f"{', '.join(f'{a:g}' for a in plan.amplitudes_nm)} N*m"
+        f"{', '.join(f'{a:g}' for a in plan.levels)} N*m"
     )
     return 0

@@ -1,0 +1,463 @@
+"""The shortest chirp test that meets every precision target (``dtid plan``).
+
+A design is two identifying amplitudes, each chirped a number of times, with one chirp duration
+and band, and the validation chirp after them. Its predicted covariance is eq. (17)'s
+linearised sandwich (:mod:`dtid.identification.planning.information`) with each run's residual
+variance scaled by the time the sweep spends per hertz: a chirp twice as long, or over half the
+band, puts twice the excitation into each bin, and the Welch estimate's variance halves; a
+repeated run is a second term of eq. (17) (the runs are fitted jointly, as ``dtid identify``
+fits every run at an identifying amplitude). The search enumerates designs and keeps the one
+with the shortest test time that meets every target; when none within the limits does, the one
+that comes closest, with what each unmet target would need.
+
+Why two identifying amplitudes: eq. (23) needs two to split a stiffness from its free play, a
+third adds less than repeating the better two (the predictions at the reference vehicle), and
+``dtid identify``'s default choice (the two largest amplitudes identify, the smaller validate)
+then reads the planned test without options.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtid.acquisition.config import SafetyConfig
+from dtid.acquisition.plan import TestPlan, in_rounds
+from dtid.errors import ConfigError
+from dtid.identification.frf.closed_loop import sweep_edge_hz
+from dtid.identification.frf.runs import ChirpRun
+from dtid.identification.planning.information import (
+    RESOLUTION_HZ,
+    LevelInformation,
+    PlanInformation,
+)
+from dtid.identification.search.identify import AMPLITUDE_MATCH
+from dtid.identification.search.parameterization import THETA_NAMES
+
+PRECISION_NAMES: tuple[str, ...] = ("J1", "J2", "J3", *THETA_NAMES)
+"""Parameters whose precision is predicted: the inertias and setup-4's ten."""
+DEFAULT_TARGETS_PERCENT: dict[str, float] = {
+    **{name: 5.0 for name in ("J1", "J2", "J3", "J_sum", "x1", "x12", "c12", "c23")},
+    **{name: 5.0 for name in ("eps12", "eps23")},
+    **{name: 20.0 for name in ("d12", "d23", "Tc12")},
+}
+"""Targets, % of the value at :data:`SIGMAS` standard deviations: inertias, mass ratios,
+stiffnesses and free plays 5 %, dampings and the friction 20 %."""
+SIGMAS = 2.0
+"""A target is met when this many predicted standard deviations lie within it."""
+DURATIONS_S: tuple[float, ...] = (30.0, 45.0, 60.0, 90.0, 120.0)
+"""Chirp durations the search tries, s (a run longer than 120 s is a repeat instead: the same
+information, and a drift of the idle between runs shows as scatter rather than bias)."""
+BANDS_HZ: tuple[tuple[float, float], ...] = ((1.0, 15.0), (2.0, 15.0), (1.0, 12.0), (2.0, 12.0))
+"""Sweep bands the search tries, Hz (those inside the measured chirps' band)."""
+MAX_REPEATS = 12
+"""Most chirps the search puts at one amplitude."""
+DEFAULT_MAX_TIME_S = 1800.0
+"""Default limit of the whole test's duration, s: half an hour at idle, in which an engine's
+oil and coolant temperatures (and with them its friction) stay close to constant."""
+VALIDATION_NM = 2.0
+"""The validation chirp's amplitude, N*m (the paper's A3)."""
+
+
+@dataclass(frozen=True)
+class Design:
+    """A chirp test as the search describes it.
+
+    Attributes
+    ----------
+    amplitudes_nm
+        The identifying amplitudes, ascending, N*m.
+    repeats
+        Chirps at each amplitude.
+    duration_s
+        T_D of every chirp, s.
+    f1_hz, f2_hz
+        The sweep's start and end frequency, Hz.
+    validation_nm
+        The validation chirp's amplitude after them, N*m; 0 for none.
+    settle_s, pause_s
+        Idle before the first chirp and between chirps, s.
+    """
+
+    amplitudes_nm: tuple[float, ...]
+    repeats: tuple[int, ...]
+    duration_s: float
+    f1_hz: float
+    f2_hz: float
+    validation_nm: float = VALIDATION_NM
+    settle_s: float = 3.0
+    pause_s: float = 3.0
+
+    def test_plan(self) -> TestPlan:
+        """The daemon's and the simulator's plan: the amplitudes in rounds
+        (:func:`dtid.acquisition.plan.in_rounds`), then the validation chirp."""
+        return TestPlan(
+            amplitudes_nm=in_rounds(self.amplitudes_nm, self.repeats),
+            validation_nm=self.validation_nm,
+            f1_hz=self.f1_hz,
+            f2_hz=self.f2_hz,
+            duration_s=self.duration_s,
+            settle_s=self.settle_s,
+            pause_s=self.pause_s,
+        )
+
+    @property
+    def test_time_s(self) -> float:
+        """Duration of the whole test: settle, chirps, pauses and the validation chirp, s."""
+        chirps = sum(self.repeats) + (1 if self.validation_nm else 0)
+        return self.settle_s + chirps * (self.duration_s + self.pause_s)
+
+    def as_dict(self, setpoint_rpm: float) -> dict[str, object]:
+        """The ``plan`` entry of ``dtid plan``'s JSON."""
+        return {
+            "amplitudes_nm": list(self.amplitudes_nm),
+            "repeats": list(self.repeats),
+            "duration_s": self.duration_s,
+            "f1_hz": self.f1_hz,
+            "f2_hz": self.f2_hz,
+            "validation_nm": self.validation_nm,
+            "settle_s": self.settle_s,
+            "pause_s": self.pause_s,
+            "setpoint_rpm": round(setpoint_rpm, 1),
+            "sweep": "linear",
+        }
+
+
+PAPER_DESIGN = Design((5.0, 10.0), (1, 1), 60.0, 1.0, 15.0)
+"""The paper's test: one 60 s chirp from 1 to 15 Hz at 5 and at 10 N*m, 2 N*m validates."""
+
+
+def parse_targets(items: Sequence[str]) -> dict[str, float]:
+    """``NAME=PERCENT`` items over the default targets; ``NAME=0`` drops a target.
+
+    Raises
+    ------
+    ConfigError
+        On an unknown name or a percentage that is not a non-negative number.
+    """
+    targets = dict(DEFAULT_TARGETS_PERCENT)
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in PRECISION_NAMES:
+            raise ConfigError(
+                f"--target {item!r}: expected NAME=PERCENT with NAME one of "
+                f"{', '.join(PRECISION_NAMES)} (e.g. eps23=10)"
+            )
+        try:
+            percent = float(value)
+        except ValueError:
+            percent = math.nan
+        if not (math.isfinite(percent) and percent >= 0):
+            raise ConfigError(f"--target {item!r}: the percentage must be a number >= 0")
+        if percent == 0:
+            targets.pop(name, None)
+        else:
+            targets[name] = percent
+    return targets
+
+
+@dataclass(frozen=True)
+class _Block:
+    """One run's terms of the sandwich: w J^T J and w^2 J^T Sigma J (SI units)."""
+
+    a: np.ndarray
+    b: np.ndarray
+
+
+def _block(
+    info: PlanInformation, level: LevelInformation, duration: float, band: tuple[float, float]
+) -> _Block | None:
+    f1, f2 = band
+    edge = sweep_edge_hz(ChirpRun(0.0, duration, level.amplitude_nm, f1, f2), RESOLUTION_HZ)
+    rows = (level.frequency_hz >= f1 + edge - 1e-9) & (level.frequency_hz <= f2 - edge + 1e-9)
+    if rows.sum() < len(THETA_NAMES):
+        return None
+    reference = info.reference
+    time_per_hz = duration / (f2 - f1)
+    scale = reference.duration_s / (reference.f2_hz - reference.f1_hz) / time_per_hz
+    jac = level.jacobian_db[rows]
+    measured = level.drv_db[rows]
+    spread = float(np.linalg.norm(measured - measured.mean()))
+    sigma = level.covariance(rows) * scale
+    weight = 1.0 / (spread * math.sqrt(float(np.trace(sigma))))
+    return _Block(weight * jac.T @ jac, weight**2 * jac.T @ sigma @ jac)
+
+
+def _relative_sd(info: PlanInformation, covariance: np.ndarray) -> np.ndarray:
+    """(..., len(PRECISION_NAMES)) relative standard deviations from setup-4 covariances."""
+    values = info.values
+    j_sum, x1, x12 = (values[THETA_NAMES.index(n)] for n in ("J_sum", "x1", "x12"))
+    inertias = np.array([j_sum * x1 * x12, j_sum * (1 - x1) * x12, j_sum * (1 - x12)])
+    grads = np.zeros((3, len(THETA_NAMES)))  # d(J1, J2, J3) / d(J_sum, x1, x12)
+    grads[:, :3] = [
+        [x1 * x12, j_sum * x12, j_sum * x1],
+        [(1 - x1) * x12, -j_sum * x12, j_sum * (1 - x1)],
+        [1 - x12, 0.0, -j_sum],
+    ]
+    theta_var = np.diagonal(covariance, axis1=-2, axis2=-1)
+    inertia_var = np.einsum("ki,...ij,kj->...k", grads, covariance, grads)
+    sd = np.sqrt(np.maximum(np.concatenate([inertia_var, theta_var], axis=-1), 0.0))
+    return sd / np.concatenate([inertias, values])
+
+
+def _sandwich(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    inverse = np.linalg.inv(a)
+    return inverse @ b @ inverse
+
+
+def predict(info: PlanInformation, design: Design) -> dict[str, float]:
+    """Each parameter's predicted relative standard deviation (1 sigma) for a design.
+
+    Raises
+    ------
+    ConfigError
+        If an amplitude of the design was not measured, or its band leaves too few bins.
+    """
+    a = np.zeros((len(THETA_NAMES), len(THETA_NAMES)))
+    b = np.zeros_like(a)
+    for amplitude, repeats in zip(design.amplitudes_nm, design.repeats, strict=True):
+        level = _level(info, amplitude)
+        block = _block(info, level, design.duration_s, (design.f1_hz, design.f2_hz))
+        if block is None:
+            raise ConfigError(
+                f"a {design.duration_s:g} s chirp over {design.f1_hz:g}-{design.f2_hz:g} Hz leaves "
+                "too few frequency bins to identify ten parameters"
+            )
+        a += repeats * block.a
+        b += repeats * block.b
+    sd = _relative_sd(info, _sandwich(a, b))
+    return {name: float(value) for name, value in zip(PRECISION_NAMES, sd, strict=True)}
+
+
+def _level(info: PlanInformation, amplitude: float) -> LevelInformation:
+    for level in info.levels:
+        if abs(level.amplitude_nm - amplitude) <= AMPLITUDE_MATCH * amplitude:
+            return level
+    raise ConfigError(
+        f"no information measured at {amplitude:g} N*m (measured: "
+        f"{', '.join(f'{a:g}' for a in info.amplitudes_nm)} N*m)"
+    )
+
+
+@dataclass(frozen=True)
+class Unmet:
+    """A target the recommended design does not reach.
+
+    Attributes
+    ----------
+    name
+        The parameter.
+    target_percent, predicted_percent
+        The target and the design's prediction, both at :data:`SIGMAS` sigma, %.
+    reason
+        Why, and what would meet it.
+    """
+
+    name: str
+    target_percent: float
+    predicted_percent: float
+    reason: str
+
+    def as_dict(self) -> dict[str, object]:
+        """The JSON entry."""
+        return {
+            "name": self.name,
+            "target_percent": self.target_percent,
+            "predicted_percent": round(self.predicted_percent, 2),
+            "reason": self.reason,
+        }
+
+
+@dataclass(frozen=True)
+class Recommendation:
+    """The search's answer.
+
+    Attributes
+    ----------
+    design
+        The shortest design meeting every target, or the closest within the limits.
+    precision
+        Its predicted relative standard deviations (1 sigma), by :data:`PRECISION_NAMES`.
+    unmet
+        The targets it does not reach (empty when it meets them all).
+    excluded
+        Candidate amplitudes left out, each with the reason.
+    designs_tried
+        Designs evaluated.
+    """
+
+    design: Design
+    precision: dict[str, float]
+    unmet: tuple[Unmet, ...]
+    excluded: dict[float, str]
+    designs_tried: int
+
+
+def recommend(
+    info: PlanInformation,
+    targets: Mapping[str, float],
+    max_amplitude_nm: float,
+    max_time_s: float = DEFAULT_MAX_TIME_S,
+    validation_nm: float = VALIDATION_NM,
+    speed_window_rpm: float = SafetyConfig().speed_window_rpm,
+) -> Recommendation:
+    """Search the shortest design that meets every target (see the module notes).
+
+    Parameters
+    ----------
+    info
+        The candidate amplitudes' information.
+    targets
+        Target per parameter name, % at :data:`SIGMAS` sigma.
+    max_amplitude_nm
+        Largest amplitude allowed, N*m.
+    max_time_s
+        Longest whole test allowed, s.
+    validation_nm
+        The validation chirp's amplitude, N*m (0: none); it does not identify, so it is not a
+        candidate.
+    speed_window_rpm
+        The daemon's safety window around the idle speed: an amplitude whose chirp took the
+        speed further at the prior is left out.
+
+    Raises
+    ------
+    ConfigError
+        If fewer than two amplitudes are allowed, or no design fits in ``max_time_s``.
+    """
+    excluded: dict[float, str] = {}
+    allowed = []
+    for level in info.levels:
+        a = level.amplitude_nm
+        if a > max_amplitude_nm * (1 + 1e-9):
+            excluded[a] = f"above the amplitude cap of {max_amplitude_nm:g} N*m"
+        elif validation_nm and abs(a - validation_nm) <= AMPLITUDE_MATCH * validation_nm:
+            excluded[a] = "the validation chirp's amplitude (it must not identify)"
+        elif validation_nm and a < validation_nm:
+            excluded[a] = "below the validation chirp's (the two largest amplitudes identify)"
+        elif level.speed_excursion_rpm > speed_window_rpm:
+            excluded[a] = (
+                f"its chirp took the speed {level.speed_excursion_rpm:.0f} rpm from idle at the "
+                f"prior, outside the {speed_window_rpm:g} rpm safety window"
+            )
+        else:
+            allowed.append(level)
+    if len(allowed) < 2:
+        raise ConfigError(
+            "fewer than two amplitudes are allowed ("
+            + "; ".join(f"{a:g} N*m: {why}" for a, why in excluded.items())
+            + "); two identify a stiffness and its free play (eq. 23): raise --max-amplitude"
+        )
+    names = [n for n in PRECISION_NAMES if n in targets]
+    index = [PRECISION_NAMES.index(n) for n in names]
+    needed = np.array([targets[n] / 100.0 / SIGMAS for n in names])
+    counts = np.array(list(itertools.product(range(1, MAX_REPEATS + 1), repeat=2)))
+    best: tuple[tuple[float, float], Design] | None = None
+    closest: tuple[float, Design] | None = None
+    tried = 0
+    for low, high in itertools.combinations(allowed, 2):
+        for duration, band in itertools.product(DURATIONS_S, BANDS_HZ):
+            if band[0] < info.reference.f1_hz or band[1] > info.reference.f2_hz:
+                continue
+            blocks = [_block(info, level, duration, band) for level in (low, high)]
+            if blocks[0] is None or blocks[1] is None:
+                continue
+            a = counts[:, 0, None, None] * blocks[0].a + counts[:, 1, None, None] * blocks[1].a
+            b = counts[:, 0, None, None] * blocks[0].b + counts[:, 1, None, None] * blocks[1].b
+            sd = _relative_sd(info, _sandwich(a, b))[:, index]
+            worst = np.max(sd / needed, axis=1)
+            for (n_low, n_high), ratio in zip(counts, worst, strict=True):
+                design = Design(
+                    (low.amplitude_nm, high.amplitude_nm),
+                    (int(n_low), int(n_high)),
+                    duration,
+                    *band,
+                    validation_nm=validation_nm,
+                )
+                if design.test_time_s > max_time_s:
+                    continue
+                tried += 1
+                if ratio <= 1.0:
+                    key = (design.test_time_s, float(ratio))
+                    if best is None or key < best[0]:
+                        best = (key, design)
+                if closest is None or ratio < closest[0]:
+                    closest = (float(ratio), design)
+    if closest is None:
+        shortest = Design((1.0, 2.0), (1, 1), min(DURATIONS_S), 1.0, 15.0, validation_nm)
+        raise ConfigError(
+            f"no test fits in --max-time {max_time_s:g} s: the shortest (two "
+            f"{min(DURATIONS_S):g} s chirps and the validation chirp) lasts "
+            f"{shortest.test_time_s:g} s"
+        )
+    design = best[1] if best is not None else closest[1]
+    precision = predict(info, design)
+    unmet = tuple(
+        _unmet(name, targets[name], precision[name], design, max_time_s)
+        for name in names
+        if SIGMAS * precision[name] * 100.0 > targets[name]
+    )
+    return Recommendation(design, precision, unmet, excluded, tried)
+
+
+def _unmet(name: str, target: float, sd: float, design: Design, max_time_s: float) -> Unmet:
+    predicted = SIGMAS * sd * 100.0
+    chirp_time = sum(design.repeats) * design.duration_s
+    needed = chirp_time * (predicted / target) ** 2
+    amplitudes = " and ".join(f"{a:g}" for a in design.amplitudes_nm)
+    reason = (
+        f"{predicted:.1f} % at {SIGMAS:g} sigma within --max-time {max_time_s:g} s; the precision "
+        f"grows with the square root of the chirp time, so about {needed / 60:.0f} min of "
+        f"chirps at {amplitudes} N*m (now {chirp_time / 60:.0f} min) would reach {target:g} %"
+    )
+    return Unmet(name, target, predicted, reason)
+
+
+def plan_document(
+    info: PlanInformation,
+    recommendation: Recommendation,
+    targets: Mapping[str, float],
+    limits: Mapping[str, float],
+) -> dict[str, object]:
+    """``dtid plan``'s JSON (docs/schemas/plan.schema.json): the recommended plan, its predicted
+    precision (relative, 1 sigma), test time and unmet targets, and the paper's plan beside it."""
+    design = recommendation.design
+    paper = predict(info, PAPER_DESIGN)
+    return {
+        "plan": design.as_dict(info.setpoint_rpm),
+        "predicted_precision": _rounded(recommendation.precision),
+        "test_time_s": design.test_time_s,
+        "unmet": [u.as_dict() for u in recommendation.unmet],
+        "meets_targets": not recommendation.unmet,
+        "targets_percent": dict(targets),
+        "sigmas": SIGMAS,
+        "limits": dict(limits),
+        "paper": {
+            "plan": PAPER_DESIGN.as_dict(info.setpoint_rpm),
+            "predicted_precision": _rounded(paper),
+            "test_time_s": PAPER_DESIGN.test_time_s,
+        },
+        "prior": info.prior.as_dict(),
+        "information": {
+            "amplitudes_nm": list(info.amplitudes_nm),
+            "seeds": info.seeds,
+            "speed_excursion_rpm": [round(lv.speed_excursion_rpm, 1) for lv in info.levels],
+            "excluded": {f"{a:g}": why for a, why in recommendation.excluded.items()},
+            "designs_tried": recommendation.designs_tried,
+        },
+    }
+
+
+def _rounded(precision: Mapping[str, float]) -> dict[str, float]:
+    return {name: round(value, 5) for name, value in precision.items()}
+
+
+def scaled(design: Design, factor: float) -> Design:
+    """The design with its repeats scaled by ``factor`` (at least one chirp per amplitude)."""
+    repeats = tuple(max(1, round(n * factor)) for n in design.repeats)
+    return dataclasses.replace(design, repeats=repeats)

@@ -1,0 +1,259 @@
+"""What one chirp at each amplitude tells about each parameter: eq. (17)'s linearised information.
+
+Near its minimum eq. (17) is a weighted least-squares fit of the runs' |G_DRV| in dB, each run's
+bins weighted by w = 1 / (spread * ||r||) (spread: the run's measured spread, the NRMSE's
+denominator; ||r||: the norm of its residual at the optimum), so an estimate's error is, to
+first order, A^-1 sum_runs w J^T r with A = sum_runs w J^T J, and its covariance the sandwich
+A^-1 (sum_runs w^2 J^T Sigma J) A^-1 (Sigma: the run's residual covariance). Each amplitude's
+J and Sigma are measured here once, at a prior, from the product's own simulator: a test
+holding one 60 s chirp per candidate amplitude, simulated with several noise seeds (combustion
+variation and sensor noise), each identified side by its own model seed, so Sigma holds the
+recording's noise and the model's Monte Carlo scatter alike. J is
+:func:`dtid.identification.search.sensitivity.jacobian`'s, averaged over the seeds; Sigma is the
+seeds' residual at the prior, its variance smoothed over neighbouring bins and its correlation
+between bins (the Welch segments overlap, the window leaks) pooled into one Toeplitz matrix.
+
+Nothing here sees a recording: the figures are predictions for a vehicle like the prior, with the
+reference idle loop, engine and noise (:class:`dtid.simulator.simulate.SimulationOptions`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import toeplitz
+from scipy.ndimage import uniform_filter1d
+
+from dtid.acquisition.plan import TestPlan
+from dtid.identification.frf.runs import ChirpRun
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import Objective
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.identification.search.sensitivity import jacobian
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions, simulate
+
+RESOLUTION_HZ = 0.25
+"""Welch resolution of the predicted identification, Hz (``dtid identify``'s default)."""
+DEFAULT_SEEDS = 6
+"""Noise seeds the information is averaged over: with the smoothing below, each bin's variance
+rests on about 30 squared residuals (about +-25 % on it, +-13 % on a predicted standard
+deviation)."""
+SMOOTHING_BINS = 5
+"""Width of the moving average over bins that smooths each run's residual variance."""
+MAX_LAG_BINS = 8
+"""Longest lag, bins, of the pooled residual correlation; it is cut at its first lag below
+:data:`CORRELATION_FLOOR`."""
+CORRELATION_FLOOR = 0.05
+
+
+@dataclass(frozen=True)
+class LevelInformation:
+    """What one chirp at one amplitude contributes, measured at the prior.
+
+    Attributes
+    ----------
+    amplitude_nm
+        A_test, N*m.
+    frequency_hz
+        The run's bins, Hz.
+    drv_db
+        Measured |G_DRV| at the prior, mean over the seeds, dB (sets the run's spread).
+    jacobian_db
+        (bins, 10) sensitivity of the model's |G_DRV| to each setup-4 parameter, dB per SI unit
+        (per :data:`dtid.identification.search.parameterization.THETA_UNITS`).
+    sigma_db
+        (bins,) standard deviation of the residual at the prior, dB, for the measured chirp.
+    correlation
+        Residual correlation between bins 0, 1, ... lags apart (1 at lag 0).
+    speed_excursion_rpm
+        Largest deviation of the engine speed from its idle mean during the chirp, rpm.
+    coherence
+        Median coherence of the run over its band.
+    """
+
+    amplitude_nm: float
+    frequency_hz: np.ndarray
+    drv_db: np.ndarray
+    jacobian_db: np.ndarray
+    sigma_db: np.ndarray
+    correlation: np.ndarray
+    speed_excursion_rpm: float
+    coherence: float
+
+    def covariance(self, rows: np.ndarray) -> np.ndarray:
+        """Residual covariance of the bins selected by ``rows`` (a boolean mask), dB^2."""
+        sigma = self.sigma_db[rows]
+        lags = np.zeros(len(sigma))
+        lags[: min(len(sigma), len(self.correlation))] = self.correlation[: len(sigma)]
+        values, vectors = np.linalg.eigh(toeplitz(lags))  # a cut correlation may lose PSD
+        correlation = (vectors * np.maximum(values, 0.0)) @ vectors.T
+        return sigma[:, None] * correlation * sigma[None, :]
+
+
+@dataclass(frozen=True)
+class PlanInformation:
+    """Every candidate amplitude's information at one prior.
+
+    Attributes
+    ----------
+    prior
+        The drivetrain the information is measured at.
+    values
+        Its setup-4 values, ordered as :data:`THETA_NAMES`, SI units.
+    reference
+        The measured chirps' plan (duration and band of each candidate amplitude's chirp).
+    levels
+        One per candidate amplitude, ascending.
+    setpoint_rpm
+        The idle speed measured in the simulated test, rpm.
+    seeds
+        Noise seeds averaged.
+    """
+
+    prior: DrivetrainParameters
+    values: np.ndarray
+    reference: TestPlan
+    levels: tuple[LevelInformation, ...]
+    setpoint_rpm: float
+    seeds: int
+
+    @property
+    def amplitudes_nm(self) -> tuple[float, ...]:
+        """The candidate amplitudes, N*m."""
+        return tuple(level.amplitude_nm for level in self.levels)
+
+
+def measure_information(
+    prior: DrivetrainParameters,
+    amplitudes_nm: Sequence[float],
+    reference: TestPlan | None = None,
+    options: SimulationOptions | None = None,
+    seeds: int = DEFAULT_SEEDS,
+) -> PlanInformation:
+    """Measure each amplitude's linearised information at a prior (see the module notes).
+
+    Parameters
+    ----------
+    prior
+        Drivetrain parameters to linearise at.
+    amplitudes_nm
+        Candidate amplitudes, N*m; one chirp each, with ``reference``'s duration and band.
+    reference
+        Duration, band, settle and pause of the measured chirps (its amplitudes are replaced);
+        the paper's 60 s chirp from 1 to 15 Hz by default.
+    options
+        The simulated vehicle's engine, idle loop and noise; the reference's by default.
+    seeds
+        Noise seeds to average over.
+
+    Returns
+    -------
+    PlanInformation
+    """
+    amplitudes = tuple(sorted(float(a) for a in amplitudes_nm))
+    base = reference or TestPlan()
+    plan = TestPlan(
+        amplitudes_nm=amplitudes,
+        validation_nm=0.0,
+        f1_hz=base.f1_hz,
+        f2_hz=base.f2_hz,
+        duration_s=base.duration_s,
+        settle_s=base.settle_s,
+        pause_s=base.pause_s,
+        request_period_s=base.request_period_s,
+    )
+    options = options or SimulationOptions()
+    theta = theta_from_parameters(prior)
+    values = np.array([theta[name] for name in THETA_NAMES])
+    par = Parameterization.around(prior, prior.T_loss, prior.K)
+    unit = par.unit(values[None])[0]
+    span = par.upper - par.lower
+    jacobians, residuals, measured, excursions, coherences, setpoints = [], [], [], [], [], []
+    for seed in range(seeds):
+        result = simulate(prior, plan, options, seed=1000 + seed)
+        test = MeasuredTest.from_data(f"seed {seed}", from_simulation(result), RESOLUTION_HZ)
+        if len(test.estimates) != len(amplitudes):
+            raise ValueError(f"the simulated test at the prior gave {len(test.estimates)} runs")
+        runs = list(range(len(amplitudes)))
+        drv = [e.drv_db for e in test.estimates]
+        objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=seed)
+        spreads = np.concatenate([np.full(len(d), np.linalg.norm(d - d.mean())) for d in drv])
+        jac, res = jacobian(objective, unit)
+        jacobians.append(jac * spreads[:, None] / span)  # dB per SI unit
+        residuals.append(-res * spreads)  # measured minus model, dB
+        measured.append(np.concatenate(drv))
+        idle = test.setpoint_rpm
+        setpoints.append(idle)
+        excursions.append(
+            [
+                float(np.max(np.abs(result.speed_rpm[_within(result.speed_t, e.run)] - idle)))
+                for e in test.estimates
+            ]
+        )
+        coherences.append([float(np.median(e.coherence)) for e in test.estimates])
+    bounds = np.cumsum([0] + [len(e.frequency_hz) for e in test.estimates])
+    mean_jacobian = np.mean(jacobians, axis=0)
+    residual = np.array(residuals)
+    levels = []
+    for k, estimate in enumerate(test.estimates):
+        rows = slice(bounds[k], bounds[k + 1])
+        levels.append(
+            LevelInformation(
+                amplitude_nm=amplitudes[k],
+                frequency_hz=estimate.frequency_hz,
+                drv_db=np.mean(measured, axis=0)[rows],
+                jacobian_db=mean_jacobian[rows],
+                sigma_db=np.sqrt(
+                    uniform_filter1d(np.mean(residual[:, rows] ** 2, axis=0), SMOOTHING_BINS)
+                ),
+                correlation=pooled_correlation(residual[:, rows]),
+                speed_excursion_rpm=float(np.max(np.array(excursions)[:, k])),
+                coherence=float(np.median(np.array(coherences)[:, k])),
+            )
+        )
+    return PlanInformation(
+        prior=prior,
+        values=values,
+        reference=plan,
+        levels=tuple(levels),
+        setpoint_rpm=float(np.mean(setpoints)),
+        seeds=seeds,
+    )
+
+
+def pooled_correlation(residuals: np.ndarray) -> np.ndarray:
+    """Correlation of residuals between bins 0..:data:`MAX_LAG_BINS` apart, pooled over seeds.
+
+    Parameters
+    ----------
+    residuals
+        (seeds, bins) residuals of one run, dB.
+
+    Returns
+    -------
+    numpy.ndarray
+        Correlation at lags 0, 1, ..., cut (to zero) from its first lag below
+        :data:`CORRELATION_FLOOR` (:meth:`LevelInformation.covariance` clips the Toeplitz
+        matrix it makes to positive semi-definite).
+    """
+    z = residuals / np.maximum(np.sqrt(np.mean(residuals**2, axis=0)), 1e-12)
+    n = z.shape[1]
+    values = [1.0]
+    for lag in range(1, min(MAX_LAG_BINS, n - 1) + 1):
+        rho = float(np.mean(z[:, :-lag] * z[:, lag:]))
+        if rho < CORRELATION_FLOOR:
+            break
+        values.append(rho)
+    return np.array(values)
+
+
+def _within(t: np.ndarray, run: ChirpRun) -> np.ndarray:
+    return (t >= run.start_s) & (t <= run.end_s)
