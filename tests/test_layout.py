@@ -36,7 +36,11 @@ LAYERS = (
     ("dtid.identification.search",),
     ("dtid.identification.uncertainty",),
     ("dtid.identification.pipeline", "dtid.identification.setups", "dtid.identification.plots"),
-    ("dtid.identification.diagnosis", "dtid.identification.html_report"),
+    (
+        "dtid.identification.diagnosis",
+        "dtid.identification.html_report",
+        "dtid.identification.planning",
+    ),
     ("dtid.identification.fleet",),
     ("dtid.identification.service",),
     ("dtid.workflow", "dtid"),

@@ -34,6 +34,7 @@ def test_every_schema_file_is_tested() -> None:
         "identification",
         "diagnosis",
         "recording-metadata",
+        "plan",  # validated in tests/test_plan.py (dtid plan's own fixture)
     }
 
 

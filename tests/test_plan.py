@@ -1,0 +1,241 @@
+"""``dtid plan``: the predicted precision holds on recordings it did not see, the search finds
+the shortest test, and the plan file runs (daemon configuration, ``dtid simulate --plan``)."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from json_schemas import validate
+
+from dtid import read_recording
+from dtid.acquisition.config import load_config
+from dtid.acquisition.plan import TestPlan, in_rounds, plan_from_file
+from dtid.cli import main
+from dtid.errors import ConfigError
+from dtid.identification.frf.runs import find_runs
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.planning.design import (
+    DEFAULT_TARGETS_PERCENT,
+    DURATIONS_S,
+    PRECISION_NAMES,
+    SIGMAS,
+    Design,
+    predict,
+    recommend,
+)
+from dtid.identification.planning.information import (
+    RESOLUTION_HZ,
+    PlanInformation,
+    measure_information,
+)
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import Objective
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.identification.search.sensitivity import jacobian
+from dtid.simulator.parameters import reference_parameters
+from dtid.simulator.simulate import simulate
+
+
+@pytest.fixture(scope="module")
+def information() -> PlanInformation:
+    """The reference vehicle's information at 2 (validation), 5 and 10 N*m from 60 s chirps."""
+    return measure_information(reference_parameters(), (2.0, 5.0, 10.0), seeds=6)
+
+
+def linearised_errors(design: Design, seeds: range) -> np.ndarray:
+    """Eq. (17)'s linearised estimator applied to fresh recordings of ``design`` at the
+    reference: (seeds, 13) relative errors, ordered as PRECISION_NAMES.
+
+    Independent of the prediction's own machinery: new noise seeds, the design's own chirps (not
+    the 60 s ones scaled), each seed's residual and its own eq. (17) weights, the errors mapped
+    to J1-J3 exactly rather than to first order."""
+    prior = reference_parameters()
+    plan = design.test_plan()
+    theta = theta_from_parameters(prior)
+    values = np.array([theta[n] for n in THETA_NAMES])
+    par = Parameterization.around(prior, prior.T_loss, prior.K)
+    unit = par.unit(values[None])[0]
+    span = par.upper - par.lower
+    errors, jac = [], None
+    for seed in seeds:
+        test = MeasuredTest.from_data(
+            "fresh", from_simulation(simulate(prior, plan, seed=7000 + seed)), RESOLUTION_HZ
+        )
+        runs = [i for i, e in enumerate(test.estimates) if e.run.amplitude_nm > 3]
+        drv = [test.estimates[i].drv_db for i in runs]
+        objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=50 + seed)
+        if jac is None:
+            jac, _ = jacobian(objective, unit)
+        residual = -objective.residuals(unit[None])[0]  # measured minus model, / spread
+        bounds = np.cumsum([0] + [len(d) for d in drv])
+        weights = np.concatenate(
+            [
+                np.full(b - a, 1.0 / np.linalg.norm(residual[a:b]))
+                for a, b in itertools.pairwise(bounds)
+            ]
+        )
+        jw = jac * weights[:, None]
+        delta = np.linalg.solve(jac.T @ jw, jw.T @ residual) * span
+        estimate = values + delta
+        j_sum, x1, x12 = estimate[:3]
+        inertias = np.array([j_sum * x1 * x12, j_sum * (1 - x1) * x12, j_sum * (1 - x12)])
+        true = np.array([prior.J1, prior.J2, prior.J3])
+        errors.append(np.concatenate([inertias / true - 1, delta / values]))
+    return np.array(errors)
+
+
+def test_the_prediction_holds_on_fresh_recordings_of_a_longer_narrower_chirp(
+    information: PlanInformation,
+) -> None:
+    """Predicted from 60 s chirps over 1-15 Hz, checked on new 120 s chirps over 2-12 Hz: the
+    sweep spends 2.8 times as long per hertz, which the prediction carries by scaling each
+    bin's variance, not by simulating it. Twelve fresh recordings leave about +-20 % on each
+    measured scatter, so the median ratio over the parameters is held to within 25 % and each
+    one to a factor 2 (the issue asks 1.5 of the searches' scatter; docs/planning.md)."""
+    design = Design((5.0, 10.0), (1, 1), 120.0, 2.0, 12.0)
+    predicted = np.array([predict(information, design)[n] for n in PRECISION_NAMES])
+    errors = linearised_errors(design, range(12))
+    measured = np.sqrt(np.mean(errors**2, axis=0))
+    ratio = measured / predicted
+    assert 0.75 < np.median(ratio) < 1.33, dict(zip(PRECISION_NAMES, ratio.round(2), strict=True))
+    assert np.all((ratio > 0.5) & (ratio < 2.0)), dict(
+        zip(PRECISION_NAMES, ratio.round(2), strict=True)
+    )
+
+
+def test_repeats_and_duration_trade_as_the_scaling_says(information: PlanInformation) -> None:
+    """Twice the runs gives exactly 1/sqrt(2); twice the duration nearly so (the longer sweep
+    loses less band to its edges, so a little better)."""
+    one = predict(information, Design((5.0, 10.0), (1, 1), 60.0, 1.0, 15.0))
+    two = predict(information, Design((5.0, 10.0), (2, 2), 60.0, 1.0, 15.0))
+    long = predict(information, Design((5.0, 10.0), (1, 1), 120.0, 1.0, 15.0))
+    for name in PRECISION_NAMES:
+        assert two[name] == pytest.approx(one[name] / np.sqrt(2), rel=1e-9)
+        assert 0.6 * one[name] < long[name] <= 1.01 * one[name] / np.sqrt(2)
+
+
+def test_the_search_finds_the_shortest_test(information: PlanInformation) -> None:
+    """Targets every design meets give the shortest design there is; the default targets a
+    design that meets them, and none shorter among the same amplitudes' designs does."""
+    loose = recommend(information, dict.fromkeys(PRECISION_NAMES, 1000.0), 10.0)
+    assert loose.design.repeats == (1, 1)
+    assert loose.design.duration_s == min(DURATIONS_S)
+    assert loose.design.test_time_s == 3 + 3 * (min(DURATIONS_S) + 3)
+
+    found = recommend(information, DEFAULT_TARGETS_PERCENT, 10.0, max_time_s=3600)
+    assert not found.unmet
+    assert found.design.amplitudes_nm == (5.0, 10.0)
+    for name, target in DEFAULT_TARGETS_PERCENT.items():
+        assert 100 * SIGMAS * found.precision[name] <= target * 1.001
+    shorter = Design(
+        found.design.amplitudes_nm,
+        tuple(max(1, n - 1) for n in found.design.repeats),
+        found.design.duration_s,
+        found.design.f1_hz,
+        found.design.f2_hz,
+    )
+    if shorter != found.design:
+        worse = predict(information, shorter)
+        assert any(100 * SIGMAS * worse[n] > t for n, t in DEFAULT_TARGETS_PERCENT.items())
+
+
+def test_an_unreachable_target_is_said_with_what_would_reach_it(
+    information: PlanInformation,
+) -> None:
+    found = recommend(information, DEFAULT_TARGETS_PERCENT, 10.0, max_time_s=300)
+    assert found.design.test_time_s <= 300
+    assert found.unmet
+    friction = next(u for u in found.unmet if u.name == "Tc12")
+    assert friction.predicted_percent > 20
+    assert "min of chirps at 5 and 10 N*m" in friction.reason
+    with pytest.raises(ConfigError, match="fewer than two amplitudes"):
+        recommend(information, DEFAULT_TARGETS_PERCENT, 6.0)
+    with pytest.raises(ConfigError, match="no test fits"):
+        recommend(information, DEFAULT_TARGETS_PERCENT, 10.0, max_time_s=60)
+
+
+def test_repeats_run_in_rounds() -> None:
+    assert in_rounds([10.0, 5.0], [3, 2]) == (5.0, 10.0, 5.0, 10.0, 10.0)
+    assert in_rounds([5.0, 10.0], 2) == (5.0, 10.0, 5.0, 10.0)
+    for bad in ([1, 2, 3], 0, [1.5, 1]):
+        with pytest.raises(ConfigError, match="repeats"):
+            in_rounds([5.0, 10.0], bad)  # type: ignore[arg-type]
+
+
+def _plan_file(tmp_path: Path) -> Path:
+    path = tmp_path / "plan.json"
+    plan = {
+        "amplitudes_nm": [3.0, 10.0],
+        "repeats": [2, 1],
+        "duration_s": 30.0,
+        "f1_hz": 2.0,
+        "f2_hz": 12.0,
+        "validation_nm": 2.0,
+        "setpoint_rpm": 1000.0,
+        "sweep": "linear",
+    }
+    path.write_text(json.dumps({"plan": plan}))
+    return path
+
+
+def test_the_daemon_configuration_runs_a_plan_file(tmp_path: Path) -> None:
+    _plan_file(tmp_path)
+    config = tmp_path / "dtid.toml"
+    config.write_text('[test]\nplan = "plan.json"\nrequest_period_s = 0.01\n')
+    test = load_config(config).test
+    assert test.amplitudes_nm == (3.0, 10.0, 3.0)
+    assert (test.duration_s, test.f1_hz, test.f2_hz, test.validation_nm) == (30, 2, 12, 2)
+    assert test.levels == (3.0, 10.0, 3.0, 2.0)
+
+    config.write_text("[test]\namplitudes_nm = [5, 10]\nrepeats = [1, 2]\n")
+    assert load_config(config).test.amplitudes_nm == (5.0, 10.0, 10.0)
+    config.write_text('[test]\nplan = "plan.json"\nduration_s = 60\n')
+    with pytest.raises(ConfigError, match="'duration_s' and plan are both given"):
+        load_config(config)
+    config.write_text('[test]\nplan = "missing.json"\n')
+    with pytest.raises(ConfigError, match="cannot read the plan file"):
+        load_config(config)
+    (tmp_path / "bad.json").write_text('{"plan": {"amplitudes_nm": [5]}}')
+    with pytest.raises(ConfigError, match="has no 'repeats'"):
+        plan_from_file(tmp_path / "bad.json")
+
+
+def test_dtid_simulate_records_the_planned_test(tmp_path: Path) -> None:
+    recording = tmp_path / "planned.blf"
+    assert main(["simulate", str(recording), "--plan", str(_plan_file(tmp_path))]) == 0
+    runs = find_runs(read_recording(recording).test_data().test_torque)
+    assert [round(r.amplitude_nm) for r in runs] == [3, 10, 3, 2]
+    assert all(abs(r.duration_s - 30.0) < 0.2 for r in runs)
+    assert main(["simulate", str(tmp_path / "x.blf"), "--plan", "p.json", "--f1", "2"]) == 2
+
+
+def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "plan.json"
+    args = ["plan", "--seeds", "3", "--max-amplitude", "10", "--max-time", "400"]
+    assert main([*args, "--json", str(out), "--plot", str(tmp_path / "plan.png")]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "plan")
+    assert not document["meets_targets"]
+    assert {u["name"] for u in document["unmet"]} >= {"Tc12"}
+    assert document["test_time_s"] <= 400
+    assert document["paper"]["test_time_s"] == 192.0
+    printed = capsys.readouterr().out
+    assert "does NOT meet every target" in printed and "unmet Tc12" in printed
+    assert (tmp_path / "plan.png").stat().st_size > 20_000
+    assert isinstance(plan_from_file(out), TestPlan)  # the daemon and simulate read it
+    assert main(["plan", "--target", "c12=abc"]) == 2
+    assert main(["plan", "--max-amplitude", "2"]) == 2
+    assert "error:" in capsys.readouterr().err
+
+
+def test_an_unknown_target_names_the_known_ones(capsys: pytest.CaptureFixture) -> None:
+    assert main(["plan", "--target", "stiffness=5"]) == 2
+    assert "NAME one of J1" in capsys.readouterr().err
