@@ -3,7 +3,6 @@ the shortest test, and the plan file runs (daemon configuration, ``dtid simulate
 
 from __future__ import annotations
 
-import itertools
 import json
 from pathlib import Path
 
@@ -39,7 +38,7 @@ from dtid.identification.search.parameterization import (
     Parameterization,
     theta_from_parameters,
 )
-from dtid.identification.search.sensitivity import jacobian
+from dtid.identification.search.sensitivity import jacobian, linearised_step
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import simulate
 
@@ -74,16 +73,8 @@ def linearised_errors(design: Design, seeds: range) -> np.ndarray:
         objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=50 + seed)
         if jac is None:
             jac, _ = jacobian(objective, unit)
-        residual = -objective.residuals(unit[None])[0]  # measured minus model, / spread
-        bounds = np.cumsum([0] + [len(d) for d in drv])
-        weights = np.concatenate(
-            [
-                np.full(b - a, 1.0 / np.linalg.norm(residual[a:b]))
-                for a, b in itertools.pairwise(bounds)
-            ]
-        )
-        jw = jac * weights[:, None]
-        delta = np.linalg.solve(jac.T @ jw, jw.T @ residual) * span
+        residual = objective.residuals(unit[None])[0]
+        delta = linearised_step(jac, residual, [len(d) for d in drv]) * span
         estimate = values + delta
         j_sum, x1, x12 = estimate[:3]
         inertias = np.array([j_sum * x1 * x12, j_sum * (1 - x1) * x12, j_sum * (1 - x12)])

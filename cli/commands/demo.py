@@ -2,10 +2,11 @@
 
 The virtual vehicle (the numba plant as engine ECU), the acquisition daemon and the worker run
 together, faster than real time, on python-can's in-process ``virtual`` bus: the daemon runs the
-chirp test (5 and 10 N*m identify, 2 N*m validates) and records the raw log, the worker estimates
-the FRFs and identifies the parameters while the validation chirp runs. The demo ends with the
-identified parameters beside the reference vehicle's true ones, the FRF plot (Fig. 3) and the fit
-(Fig. 6), all in the output folder.
+chirp test (the plan ``dtid plan`` recommends for the reference vehicle when it fits the demo's
+few minutes, else the paper's: 5 and 10 N*m identify, 2 N*m validates; or a plan file) and
+records the raw log, the worker estimates the FRFs and identifies the parameters while the
+validation chirp runs. The demo ends with the identified parameters beside the reference
+vehicle's true ones, the FRF plot (Fig. 3) and the fit (Fig. 6), all in the output folder.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from dtid.acquisition.config import (
     SafetyConfig,
 )
 from dtid.acquisition.daemon import Daemon
+from dtid.acquisition.plan import TestPlan, plan_from_file
 from dtid.cli.commands.common import positive_float
 from dtid.cli.commands.frf import summary_line
 from dtid.dbc.loader import load_interface
@@ -35,6 +37,7 @@ from dtid.errors import AnalysisError, RecordingError
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.html_report import REPORT_FILE
+from dtid.identification.planning.design import DEFAULT_TARGETS_PERCENT, plan_test
 from dtid.identification.plots import plot_frf
 from dtid.identification.samples.recording import load_recording
 from dtid.identification.search.identify import SearchSettings
@@ -56,6 +59,10 @@ real bus gets 0.2 s of bus time; the demo's vehicle shares a busy laptop with th
 host stall of 40-100 ms (seen here) would otherwise abort the test."""
 WORKER_NICE = 10
 """Scheduling niceness of the worker, so its search never delays the bus processes."""
+TEST_BUDGET_S = 120.0
+"""Wall time the demo's chirp test may take at its speedup, s: with the identification, whose
+time grows with the test's, the demo then stays within five minutes on a 2-core laptop. The
+plan ``dtid plan`` recommends for the reference vehicle runs when it fits, else the paper's."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -75,6 +82,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="bus time per wall time (default: %(default)s)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the vehicle's noise")
+    parser.add_argument(
+        "--plan",
+        type=Path,
+        help="run this dtid plan JSON's test (default: the plan dtid plan recommends for the "
+        f"reference vehicle when it runs within {TEST_BUDGET_S:g} s at the speedup, else the "
+        "paper's)",
+    )
     parser.add_argument(
         "--generations",
         type=int,
@@ -101,8 +115,10 @@ def run(args: argparse.Namespace) -> int:
         ) from None
     if args.generations < 1:
         raise AnalysisError("--generations must be at least 1")
+    test = plan_from_file(args.plan) if args.plan else _default_plan(args.speedup)
     runtime = Path(tempfile.mkdtemp(prefix="dtid-demo-"))
     config = AcquisitionConfig(
+        test=test,
         bus=BusConfig(
             interface="virtual", channel=f"dtid-demo-{os.getpid()}", time_factor=args.speedup
         ),
@@ -135,8 +151,8 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"reference vehicle on a virtual bus at {args.speedup:g}x real time: "
         f"{plan.end_s:.0f} s of chirp test "
-        f"({', '.join(f'{a:g}' for a in config.test.amplitudes_nm)} N*m identify, "
-        f"{config.test.validation_nm:g} N*m validates)",
+        f"({', '.join(f'{a:g}' for a in sorted(set(plan.amplitudes_nm)))} N*m identify, "
+        f"{plan.validation_nm:g} N*m validates)",
         flush=True,
     )
     try:
@@ -156,6 +172,29 @@ def run(args: argparse.Namespace) -> int:
     _plot_frf(result.log_path, args.out)
     print(f"report (one HTML page to forward): {result.session_dir / REPORT_FILE}")
     return 0
+
+
+def _default_plan(speedup: float) -> TestPlan:
+    """The recommended plan for the reference vehicle if it fits :data:`TEST_BUDGET_S`, else
+    the paper's; says which and why."""
+    _, recommendation = plan_test(reference_parameters(), DEFAULT_TARGETS_PERCENT, SafetyConfig())
+    design = recommendation.design
+    plan = design.test_plan()
+    chirps = " + ".join(
+        f"{n} x {a:g}" for a, n in zip(design.amplitudes_nm, design.repeats, strict=True)
+    )
+    described = f"{chirps} N*m, {design.duration_s:g} s chirps, {plan.end_s / 60:.1f} min"
+    if plan.end_s / speedup <= TEST_BUDGET_S:
+        print(f"running the plan dtid plan recommends for the reference vehicle: {described}")
+        return plan
+    print(
+        f"dtid plan recommends {described} for the reference vehicle's targets; at "
+        f"{speedup:g}x that is {plan.end_s / speedup / 60:.1f} min of bus before its "
+        "identification, too long for this demo: running the paper's plan instead "
+        "(dtid plan --json plan.json, then dtid demo --plan plan.json runs the recommended one)",
+        flush=True,
+    )
+    return TestPlan()
 
 
 def _show(identification: Path, truth: dict[str, float]) -> None:

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 from dtid.acquisition.config import load_config
 from dtid.cli.commands.common import positive_float
+from dtid.errors import ConfigError
 from dtid.identification.planning.design import (
     DEFAULT_MAX_TIME_S,
     PRECISION_NAMES,
@@ -14,14 +16,13 @@ from dtid.identification.planning.design import (
     VALIDATION_NM,
     parse_targets,
     plan_document,
-    recommend,
+    plan_test,
 )
-from dtid.identification.planning.information import DEFAULT_SEEDS, measure_information
+from dtid.identification.planning.information import DEFAULT_SEEDS
 from dtid.jsonfile import write_json
+from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import load_parameters, reference_parameters
-
-CANDIDATE_AMPLITUDES_NM = (2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 25.0, 30.0)
-"""Amplitudes the search chooses from (those up to the cap), N*m."""
+from dtid.simulator.simulate import SimulationOptions
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -48,6 +49,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help=f"precision targets at {SIGMAS:g} sigma over the defaults (inertias, mass ratios, "
         "stiffnesses, free plays 5 %%; dampings, friction 20 %%); NAME=0 drops one; names: "
         + ", ".join(PRECISION_NAMES),
+    )
+    parser.add_argument(
+        "--setpoint",
+        type=positive_float,
+        default=IdleController().setpoint_rpm,
+        metavar="RPM",
+        help="the vehicle's idle speed, rpm: the mean torque's Nyquist frequency (rpm/60 Hz "
+        "for four cylinders) caps the band (default: %(default)s)",
     )
     parser.add_argument(
         "--config",
@@ -87,8 +96,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Measure the information, search, print, write."""
-    from dtid.errors import ConfigError
-
     targets = parse_targets(args.target)
     safety = load_config(args.config).safety
     cap = args.max_amplitude or safety.max_amplitude_nm
@@ -97,17 +104,14 @@ def run(args: argparse.Namespace) -> int:
     if args.validation < 0:
         raise ConfigError("--validation must be >= 0 N*m (0: no validation chirp)")
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
-    amplitudes = [a for a in CANDIDATE_AMPLITUDES_NM if a <= cap + 1e-9]
-    if args.validation and all(abs(a - args.validation) > 1e-9 for a in amplitudes):
-        amplitudes.append(args.validation)
-    info = measure_information(prior, amplitudes, seeds=args.seeds)
-    recommendation = recommend(
-        info,
+    info, recommendation = plan_test(
+        prior,
         targets,
-        max_amplitude_nm=cap,
+        replace(safety, max_amplitude_nm=cap),
         max_time_s=args.max_time,
         validation_nm=args.validation,
-        speed_window_rpm=safety.speed_window_rpm,
+        seeds=args.seeds,
+        options=SimulationOptions(controller=IdleController(setpoint_rpm=args.setpoint)),
     )
     limits = {
         "max_amplitude_nm": cap,

@@ -32,12 +32,16 @@ from dtid.errors import ConfigError
 from dtid.identification.frf.closed_loop import sweep_edge_hz
 from dtid.identification.frf.runs import ChirpRun
 from dtid.identification.planning.information import (
+    DEFAULT_SEEDS,
     RESOLUTION_HZ,
     LevelInformation,
     PlanInformation,
+    measure_information,
 )
 from dtid.identification.search.identify import AMPLITUDE_MATCH
 from dtid.identification.search.parameterization import THETA_NAMES
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import SimulationOptions
 
 PRECISION_NAMES: tuple[str, ...] = ("J1", "J2", "J3", *THETA_NAMES)
 """Parameters whose precision is predicted: the inertias and setup-4's ten."""
@@ -55,13 +59,15 @@ DURATIONS_S: tuple[float, ...] = (30.0, 45.0, 60.0, 90.0, 120.0)
 information, and a drift of the idle between runs shows as scatter rather than bias)."""
 BANDS_HZ: tuple[tuple[float, float], ...] = ((1.0, 15.0), (2.0, 15.0), (1.0, 12.0), (2.0, 12.0))
 """Sweep bands the search tries, Hz (those inside the measured chirps' band)."""
-MAX_REPEATS = 12
+MAX_REPEATS = 30
 """Most chirps the search puts at one amplitude."""
 DEFAULT_MAX_TIME_S = 1800.0
 """Default limit of the whole test's duration, s: half an hour at idle, in which an engine's
 oil and coolant temperatures (and with them its friction) stay close to constant."""
 VALIDATION_NM = 2.0
 """The validation chirp's amplitude, N*m (the paper's A3)."""
+CANDIDATE_AMPLITUDES_NM = (2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 25.0, 30.0)
+"""Amplitudes the search chooses from (those up to the cap), N*m."""
 
 
 @dataclass(frozen=True)
@@ -403,6 +409,38 @@ def recommend(
         if SIGMAS * precision[name] * 100.0 > targets[name]
     )
     return Recommendation(design, precision, unmet, excluded, tried)
+
+
+def plan_test(
+    prior: DrivetrainParameters,
+    targets: Mapping[str, float],
+    safety: SafetyConfig,
+    max_time_s: float = DEFAULT_MAX_TIME_S,
+    validation_nm: float = VALIDATION_NM,
+    seeds: int = DEFAULT_SEEDS,
+    options: SimulationOptions | None = None,
+) -> tuple[PlanInformation, Recommendation]:
+    """Measure the candidate amplitudes' information at a prior and recommend a test.
+
+    The candidates are :data:`CANDIDATE_AMPLITUDES_NM` up to ``safety.max_amplitude_nm`` and
+    the validation amplitude; the speed window is ``safety``'s too (see :func:`recommend`).
+    ``options`` is the simulated vehicle (its idle speed, engine, noise; the reference's by
+    default).
+    """
+    cap = safety.max_amplitude_nm
+    amplitudes = [a for a in CANDIDATE_AMPLITUDES_NM if a <= cap * (1 + 1e-9)]
+    if validation_nm and all(abs(a - validation_nm) > 1e-9 for a in amplitudes):
+        amplitudes.append(validation_nm)
+    info = measure_information(prior, amplitudes, options=options, seeds=seeds)
+    recommendation = recommend(
+        info,
+        targets,
+        max_amplitude_nm=cap,
+        max_time_s=max_time_s,
+        validation_nm=validation_nm,
+        speed_window_rpm=safety.speed_window_rpm,
+    )
+    return info, recommendation
 
 
 def _unmet(name: str, target: float, sd: float, design: Design, max_time_s: float) -> Unmet:

@@ -19,6 +19,7 @@ reference idle loop, engine and noise (:class:`dtid.simulator.simulate.Simulatio
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -176,7 +177,8 @@ def measure_information(
     par = Parameterization.around(prior, prior.T_loss, prior.K)
     unit = par.unit(values[None])[0]
     span = par.upper - par.lower
-    jacobians, residuals, measured, excursions, coherences, setpoints = [], [], [], [], [], []
+    seen: list[list[dict[str, np.ndarray]]] = [[] for _ in amplitudes]  # per run, per seed
+    excursions, coherences, setpoints = [], [], []
     for seed in range(seeds):
         result = simulate(prior, plan, options, seed=1000 + seed)
         test = MeasuredTest.from_data(f"seed {seed}", from_simulation(result), RESOLUTION_HZ)
@@ -187,9 +189,18 @@ def measure_information(
         objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=seed)
         spreads = np.concatenate([np.full(len(d), np.linalg.norm(d - d.mean())) for d in drv])
         jac, res = jacobian(objective, unit)
-        jacobians.append(jac * spreads[:, None] / span)  # dB per SI unit
-        residuals.append(-res * spreads)  # measured minus model, dB
-        measured.append(np.concatenate(drv))
+        bounds = np.cumsum([0] + [len(d) for d in drv])
+        for k, estimate in enumerate(test.estimates):
+            rows = slice(bounds[k], bounds[k + 1])
+            seen[k].append(
+                {
+                    "bin": np.round(estimate.frequency_hz / RESOLUTION_HZ).astype(int),
+                    "frequency": estimate.frequency_hz,
+                    "jacobian": jac[rows] * spreads[rows, None] / span,  # dB per SI unit
+                    "residual": -res[rows] * spreads[rows],  # measured minus model, dB
+                    "drv": drv[k],
+                }
+            )
         idle = test.setpoint_rpm
         setpoints.append(idle)
         excursions.append(
@@ -199,22 +210,22 @@ def measure_information(
             ]
         )
         coherences.append([float(np.median(e.coherence)) for e in test.estimates])
-    bounds = np.cumsum([0] + [len(e.frequency_hz) for e in test.estimates])
-    mean_jacobian = np.mean(jacobians, axis=0)
-    residual = np.array(residuals)
     levels = []
-    for k, estimate in enumerate(test.estimates):
-        rows = slice(bounds[k], bounds[k + 1])
+    for k, per_seed in enumerate(seen):
+        # a seed's idle speed sets its frequency axis and its band's top: keep the common bins
+        common = functools.reduce(np.intersect1d, [s["bin"] for s in per_seed])
+        picked = [
+            {key: value[np.isin(s["bin"], common)] for key, value in s.items()} for s in per_seed
+        ]
+        residual = np.array([s["residual"] for s in picked])
         levels.append(
             LevelInformation(
                 amplitude_nm=amplitudes[k],
-                frequency_hz=estimate.frequency_hz,
-                drv_db=np.mean(measured, axis=0)[rows],
-                jacobian_db=mean_jacobian[rows],
-                sigma_db=np.sqrt(
-                    uniform_filter1d(np.mean(residual[:, rows] ** 2, axis=0), SMOOTHING_BINS)
-                ),
-                correlation=pooled_correlation(residual[:, rows]),
+                frequency_hz=np.mean([s["frequency"] for s in picked], axis=0),
+                drv_db=np.mean([s["drv"] for s in picked], axis=0),
+                jacobian_db=np.mean([s["jacobian"] for s in picked], axis=0),
+                sigma_db=np.sqrt(uniform_filter1d(np.mean(residual**2, axis=0), SMOOTHING_BINS)),
+                correlation=pooled_correlation(residual),
                 speed_excursion_rpm=float(np.max(np.array(excursions)[:, k])),
                 coherence=float(np.median(np.array(coherences)[:, k])),
             )

@@ -16,6 +16,8 @@ sized, after a first measurement with :data:`FIRST_STEP`, to change the curves b
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -90,3 +92,37 @@ def compensation(objective: Objective, unit: np.ndarray) -> np.ndarray:
         others = [i for i in range(n_free) if i != k]
         moves[k, others] = np.linalg.lstsq(jac[:, others], -jac[:, k], rcond=None)[0]
     return moves
+
+
+def linearised_step(jac: np.ndarray, residuals: np.ndarray, runs: Sequence[int]) -> np.ndarray:
+    """The step eq. (17)'s minimum lies at, to first order, from where ``jac`` was taken.
+
+    Near its minimum eq. (17), a sum of per-run norms, is weighted least squares with each run's
+    bins weighted by the inverse of its residual norm (the module notes); one Gauss-Newton step
+    of that problem is the first-order estimator. Applied at the truth of a simulated
+    recording, it gives that recording's estimation error without a search (``dtid plan``'s
+    predictions are checked against it: tests/test_plan.py, benchmarks/plan_trial.py).
+
+    Parameters
+    ----------
+    jac
+        (bins, n_free) Jacobian of the weighted residuals (:func:`jacobian`).
+    residuals
+        (bins,) weighted residuals, model minus measured, where ``jac`` was taken.
+    runs
+        Number of bins of each run, in order.
+
+    Returns
+    -------
+    numpy.ndarray
+        (n_free,) step, normalised units.
+    """
+    bounds = np.cumsum([0, *runs])
+    weights = np.concatenate(
+        [
+            np.full(b - a, 1.0 / np.linalg.norm(residuals[a:b]))
+            for a, b in itertools.pairwise(bounds)
+        ]
+    )
+    weighted = jac * weights[:, None]
+    return -np.linalg.solve(jac.T @ weighted, weighted.T @ residuals)
