@@ -40,6 +40,7 @@ from dtid.identification.planning.information import (
 )
 from dtid.identification.search.identify import AMPLITUDE_MATCH
 from dtid.identification.search.parameterization import THETA_NAMES
+from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions
 
@@ -58,7 +59,9 @@ DURATIONS_S: tuple[float, ...] = (30.0, 45.0, 60.0, 90.0, 120.0)
 """Chirp durations the search tries, s (a run longer than 120 s is a repeat instead: the same
 information, and a drift of the idle between runs shows as scatter rather than bias)."""
 BANDS_HZ: tuple[tuple[float, float], ...] = ((1.0, 15.0), (2.0, 15.0), (1.0, 12.0), (2.0, 12.0))
-"""Sweep bands the search tries, Hz (those inside the measured chirps' band)."""
+"""Sweep bands the search tries, Hz (those inside the measured chirps' band); where the mean
+torque's Nyquist frequency is lower than a band's top, the band ends just below it instead (a
+sweep above it excites what the FRF cannot see: :func:`bands`)."""
 MAX_REPEATS = 30
 """Most chirps the search puts at one amplitude."""
 DEFAULT_MAX_TIME_S = 1800.0
@@ -136,6 +139,19 @@ class Design:
 
 PAPER_DESIGN = Design((5.0, 10.0), (1, 1), 60.0, 1.0, 15.0)
 """The paper's test: one 60 s chirp from 1 to 15 Hz at 5 and at 10 N*m, 2 N*m validates."""
+
+
+def bands(info: PlanInformation) -> list[tuple[float, float]]:
+    """The sweep bands the search tries at the prior's idle speed (:data:`BANDS_HZ`), Hz."""
+    nyquist = 0.5 * info.setpoint_rpm / 60.0 * N_CYL / 2  # once per stroke
+    top = math.floor(2 * 0.98 * nyquist) / 2
+    candidates = [(f1, f2) for f1, f2 in BANDS_HZ if f2 <= top]
+    if top < max(f2 for _, f2 in BANDS_HZ):
+        candidates += [(f1, top) for f1 in sorted({f1 for f1, _ in BANDS_HZ})]
+    reference = info.reference
+    return sorted(
+        {(f1, f2) for f1, f2 in candidates if f1 >= reference.f1_hz and f2 <= reference.f2_hz}
+    )
 
 
 def parse_targets(items: Sequence[str]) -> dict[str, float]:
@@ -367,9 +383,7 @@ def recommend(
     closest: tuple[float, Design] | None = None
     tried = 0
     for low, high in itertools.combinations(allowed, 2):
-        for duration, band in itertools.product(DURATIONS_S, BANDS_HZ):
-            if band[0] < info.reference.f1_hz or band[1] > info.reference.f2_hz:
-                continue
+        for duration, band in itertools.product(DURATIONS_S, bands(info)):
             blocks = [_block(info, level, duration, band) for level in (low, high)]
             if blocks[0] is None or blocks[1] is None:
                 continue

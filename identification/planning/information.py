@@ -40,6 +40,7 @@ from dtid.identification.search.parameterization import (
 from dtid.identification.search.sensitivity import jacobian
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.vehicle_data import VehicleData
 
 RESOLUTION_HZ = 0.25
 """Welch resolution of the predicted identification, Hz (``dtid identify``'s default)."""
@@ -138,6 +139,7 @@ def measure_information(
     reference: TestPlan | None = None,
     options: SimulationOptions | None = None,
     seeds: int = DEFAULT_SEEDS,
+    vehicle: VehicleData | None = None,
 ) -> PlanInformation:
     """Measure each amplitude's linearised information at a prior (see the module notes).
 
@@ -154,6 +156,9 @@ def measure_information(
         The simulated vehicle's engine, idle loop and noise; the reference's by default.
     seeds
         Noise seeds to average over.
+    vehicle
+        What the model side knows of the vehicle (its engine and speed sensor; the reference's
+        by default), as ``dtid identify --vehicle`` tells it.
 
     Returns
     -------
@@ -181,7 +186,9 @@ def measure_information(
     excursions, coherences, setpoints = [], [], []
     for seed in range(seeds):
         result = simulate(prior, plan, options, seed=1000 + seed)
-        test = MeasuredTest.from_data(f"seed {seed}", from_simulation(result), RESOLUTION_HZ)
+        test = MeasuredTest.from_data(
+            f"seed {seed}", from_simulation(result), RESOLUTION_HZ, vehicle
+        )
         if len(test.estimates) != len(amplitudes):
             raise ValueError(f"the simulated test at the prior gave {len(test.estimates)} runs")
         runs = list(range(len(amplitudes)))

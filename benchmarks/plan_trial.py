@@ -1,0 +1,168 @@
+"""Does the recommended test deliver what ``dtid plan`` promised? Repeated trials on one truth.
+
+The plan is made as an engineer makes it: at the reference vehicle as prior, knowing only the
+vehicle's idle speed. The truth is one of the identification trial's random drivetrains with its
+own random idle loop, ECU timing, engine and noise
+(:func:`benchmarks.identification_trial.draw_vehicle`), which the model side does not share: it
+reads the loop from each recording and is told the engine, as in that trial. Each seed is a new
+recording of the recommended test. Two measures of the error, each against the targets and
+against the prediction (both at the prior, what the engineer saw, and at the truth, what the
+prediction gives when the prior is right):
+
+* ``--linearised N``: eq. (17)'s first-order estimator at the truth
+  (:func:`dtid.identification.search.sensitivity.linearised_step`) on N recordings: seconds each;
+* ``--searches N``: ``dtid identify``'s whole search (profiles off) on N recordings: minutes each
+  (the model repeats every chirp of the test).
+
+    PYTHONPATH=. python benchmarks/plan_trial.py --truth 3 --linearised 12 --searches 2 \
+        --json benchmarks/results/plan_trial_3.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from benchmarks.identification_trial import draw_truth, draw_vehicle
+from dtid.acquisition.config import SafetyConfig
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import run_identification
+from dtid.identification.planning.design import (
+    DEFAULT_TARGETS_PERCENT,
+    PRECISION_NAMES,
+    SIGMAS,
+    plan_test,
+    predict,
+)
+from dtid.identification.planning.information import RESOLUTION_HZ, measure_information
+from dtid.identification.samples.testdata import from_simulation
+from dtid.identification.search.identify import Objective, split_runs
+from dtid.identification.search.parameterization import (
+    THETA_NAMES,
+    Parameterization,
+    theta_from_parameters,
+)
+from dtid.identification.search.sensitivity import jacobian, linearised_step
+from dtid.jsonfile import write_json
+from dtid.simulator.controller import IdleController
+from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.vehicle_data import VehicleData
+
+
+def relative_errors(estimate: dict[str, float], truth: DrivetrainParameters) -> dict[str, float]:
+    """Each of PRECISION_NAMES's relative error, 1, from setup-4 estimates."""
+    j_sum, x1, x12 = (estimate[n] for n in ("J_sum", "x1", "x12"))
+    inertias = {"J1": j_sum * x1 * x12, "J2": j_sum * (1 - x1) * x12, "J3": j_sum * (1 - x12)}
+    true = theta_from_parameters(truth)
+    errors = {n: v / getattr(truth, n) - 1 for n, v in inertias.items()}
+    errors.update({n: estimate[n] / true[n] - 1 for n in THETA_NAMES})
+    return errors
+
+
+def main() -> None:
+    """Plan at the prior, record the plan on the truth, measure the errors."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--truth", type=int, default=0, help="0: reference; n: random truth n")
+    parser.add_argument("--linearised", type=int, default=12, help="recordings, linearised")
+    parser.add_argument("--searches", type=int, default=0, help="recordings, whole searches")
+    parser.add_argument("--max-time", type=float, default=1800.0, help="plan's time limit, s")
+    parser.add_argument("--json", help="write the figures here")
+    args = parser.parse_args()
+
+    truth, vehicle = draw_truth(args.truth), draw_vehicle(args.truth)
+    setpoint = vehicle.controller.setpoint_rpm
+    _, recommendation = plan_test(
+        reference_parameters(),
+        DEFAULT_TARGETS_PERCENT,
+        SafetyConfig(),
+        max_time_s=args.max_time,
+        options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
+    )
+    design = recommendation.design
+    plan = design.test_plan()
+    at_prior = recommendation.precision
+    known = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
+    information = measure_information(truth, design.amplitudes_nm, options=vehicle, vehicle=known)
+    at_truth = predict(information, design)
+    print(
+        f"truth {args.truth} (idle {setpoint:.0f} rpm): plan {design}, "
+        f"{design.test_time_s / 60:.1f} min; unmet at the prior: "
+        f"{[u.name for u in recommendation.unmet] or 'none'}",
+        flush=True,
+    )
+
+    def recording(seed: int) -> MeasuredTest:
+        result = simulate(truth, plan, vehicle, seed=9000 + seed)
+        return MeasuredTest.from_data(f"seed {seed}", from_simulation(result), RESOLUTION_HZ, known)
+
+    linearised = []
+    par = Parameterization.around(reference_parameters(), truth.T_loss, truth.K)
+    true = theta_from_parameters(truth)
+    values = np.array([true[n] for n in THETA_NAMES])
+    unit = par.unit(values[None])[0]
+    jac = None
+    for seed in range(args.linearised):
+        test = recording(seed)
+        (runs,), _ = split_runs([test])
+        drv = [test.estimates[i].drv_db for i in runs]
+        objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=seed)
+        if jac is None:
+            jac, _ = jacobian(objective, unit)
+        step = linearised_step(jac, objective.residuals(unit[None])[0], [len(d) for d in drv])
+        estimate = dict(zip(THETA_NAMES, par.theta((unit + step)[None])[0], strict=True))
+        linearised.append(relative_errors(estimate, truth))
+    searched = []
+    for seed in range(args.searches):
+        began = time.perf_counter()
+        report = run_identification(
+            [recording(100 + seed)], reference_parameters(), profile_points=0
+        )
+        searched.append(relative_errors(report.identification.theta, truth))
+        print(f"search {seed}: {time.perf_counter() - began:.0f} s", flush=True)
+
+    rows = {}
+    print(
+        f"{'':>6} {'target':>7} {'prior':>7} {'truth':>7} {'lin rms':>8} {'search rms':>10}"
+        f" {'worst':>7}   (% at {SIGMAS:g} sigma; errors: rms and worst |error| x {SIGMAS:g})"
+    )
+    for name in PRECISION_NAMES:
+        lin = np.array([e[name] for e in linearised])
+        found = np.array([e[name] for e in searched])
+        rows[name] = {
+            "target_percent": DEFAULT_TARGETS_PERCENT[name],
+            "predicted_at_prior": at_prior[name],
+            "predicted_at_truth": at_truth[name],
+            "linearised_rms": float(np.sqrt(np.mean(lin**2))) if len(lin) else None,
+            "search_errors": found.tolist(),
+        }
+        search_rms = (
+            f"{100 * SIGMAS * np.sqrt(np.mean(found**2)):10.1f}" if len(found) else " " * 10
+        )
+        worst = f"{100 * np.max(np.abs(found)):7.1f}" if len(found) else ""
+        print(
+            f"{name:>6} {DEFAULT_TARGETS_PERCENT[name]:7g} {100 * SIGMAS * at_prior[name]:7.1f} "
+            f"{100 * SIGMAS * at_truth[name]:7.1f} "
+            f"{100 * SIGMAS * rows[name]['linearised_rms'] if len(lin) else float('nan'):8.1f} "
+            f"{search_rms} {worst}"
+        )
+    if args.json:
+        write_json(
+            args.json,
+            {
+                "truth": args.truth,
+                "setpoint_rpm": setpoint,
+                "plan": design.as_dict(setpoint),
+                "test_time_s": design.test_time_s,
+                "unmet_at_prior": [u.as_dict() for u in recommendation.unmet],
+                "linearised_recordings": args.linearised,
+                "searches": args.searches,
+                "parameters": rows,
+            },
+        )
+
+
+if __name__ == "__main__":
+    main()
