@@ -14,14 +14,22 @@ prediction gives when the prior is right):
 * ``--searches N``: ``dtid identify``'s whole search (profiles off) on N recordings: minutes each
   (the model repeats every chirp of the test).
 
+``--independent FOLDER`` takes the truth of a vehicle of ../shared/independent instead
+(``truth.toml``: its drivetrain, idle set-point, engine and noise), simulated by the product's own
+simulator with the reference idle loop at that set-point (its recordings hold only the paper's
+plan, and its own loop is not disclosed).
+
     PYTHONPATH=. python benchmarks/plan_trial.py --truth 3 --linearised 12 --searches 2 \
         --json benchmarks/results/plan_trial_3.json
+    PYTHONPATH=. python benchmarks/plan_trial.py --independent ../shared/independent/vehicle_2
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+import tomllib
+from pathlib import Path
 
 import numpy as np
 
@@ -47,9 +55,9 @@ from dtid.identification.search.parameterization import (
 from dtid.identification.search.sensitivity import jacobian, linearised_step
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
-from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
-from dtid.simulator.vehicle_data import VehicleData
+from dtid.simulator.vehicle_data import VehicleData, load_vehicle_data
 
 
 def relative_errors(estimate: dict[str, float], truth: DrivetrainParameters) -> dict[str, float]:
@@ -62,6 +70,22 @@ def relative_errors(estimate: dict[str, float], truth: DrivetrainParameters) -> 
     return errors
 
 
+def independent_vehicle(path: Path) -> tuple[DrivetrainParameters, SimulationOptions]:
+    """The truth of an independent vehicle: drivetrain, idle set-point, engine and noise."""
+    with path.open("rb") as handle:
+        table = tomllib.load(handle)
+    drivetrain, noise = table["drivetrain"], table["noise"]
+    truth = DrivetrainParameters(**{n: float(drivetrain[n]) for n in NAMES})
+    vehicle = SimulationOptions(
+        combustion_variation=float(noise["cv"]),
+        torque_noise_nm=float(noise["sigma_T"]),
+        speed_noise_rpm=float(noise["sigma_n"]),
+        engine=load_vehicle_data(path).engine,
+        controller=IdleController(setpoint_rpm=float(drivetrain["n_set"])),
+    )
+    return truth, vehicle
+
+
 def main() -> None:
     """Plan at the prior, record the plan on the truth, measure the errors."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -69,10 +93,14 @@ def main() -> None:
     parser.add_argument("--linearised", type=int, default=12, help="recordings, linearised")
     parser.add_argument("--searches", type=int, default=0, help="recordings, whole searches")
     parser.add_argument("--max-time", type=float, default=1800.0, help="plan's time limit, s")
+    parser.add_argument("--independent", type=Path, help="a vehicle folder with its truth.toml")
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
 
-    truth, vehicle = draw_truth(args.truth), draw_vehicle(args.truth)
+    if args.independent:
+        truth, vehicle = independent_vehicle(args.independent / "truth.toml")
+    else:
+        truth, vehicle = draw_truth(args.truth), draw_vehicle(args.truth)
     setpoint = vehicle.controller.setpoint_rpm
     _, recommendation = plan_test(
         reference_parameters(),
@@ -88,7 +116,7 @@ def main() -> None:
     information = measure_information(truth, design.amplitudes_nm, options=vehicle, vehicle=known)
     at_truth = predict(information, design)
     print(
-        f"truth {args.truth} (idle {setpoint:.0f} rpm): plan {design}, "
+        f"truth {args.independent or args.truth} (idle {setpoint:.0f} rpm): plan {design}, "
         f"{design.test_time_s / 60:.1f} min; unmet at the prior: "
         f"{[u.name for u in recommendation.unmet] or 'none'}",
         flush=True,
@@ -152,7 +180,7 @@ def main() -> None:
         write_json(
             args.json,
             {
-                "truth": args.truth,
+                "truth": str(args.independent) if args.independent else args.truth,
                 "setpoint_rpm": setpoint,
                 "plan": design.as_dict(setpoint),
                 "test_time_s": design.test_time_s,
