@@ -19,6 +19,7 @@ reference idle loop, engine and noise (:class:`dtid.simulator.simulate.Simulatio
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -165,17 +166,7 @@ def measure_information(
     PlanInformation
     """
     amplitudes = tuple(sorted(float(a) for a in amplitudes_nm))
-    base = reference or TestPlan()
-    plan = TestPlan(
-        amplitudes_nm=amplitudes,
-        validation_nm=0.0,
-        f1_hz=base.f1_hz,
-        f2_hz=base.f2_hz,
-        duration_s=base.duration_s,
-        settle_s=base.settle_s,
-        pause_s=base.pause_s,
-        request_period_s=base.request_period_s,
-    )
+    plan = dataclasses.replace(reference or TestPlan(), amplitudes_nm=amplitudes, validation_nm=0.0)
     options = options or SimulationOptions()
     theta = theta_from_parameters(prior)
     values = np.array([theta[name] for name in THETA_NAMES])
