@@ -230,3 +230,58 @@ def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFix
 def test_an_unknown_target_names_the_known_ones(capsys: pytest.CaptureFixture) -> None:
     assert main(["plan", "--target", "stiffness=5"]) == 2
     assert "NAME one of J1" in capsys.readouterr().err
+
+
+def test_a_follow_up_counts_the_recorded_runs_in(information: PlanInformation) -> None:
+    """After the paper's test the follow-up needs less than a test from scratch; after a test
+    that met the targets, none."""
+    paper = [
+        Design((5.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
+        Design((10.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
+    ]
+    scratch = recommend(information, DEFAULT_TARGETS_PERCENT, 10.0, max_time_s=3600)
+    after = recommend(
+        information, DEFAULT_TARGETS_PERCENT, 10.0, 3600, validation_nm=0.0, recorded=paper
+    )
+    assert after.design is not None and not after.unmet
+    chirps = sum(after.design.repeats) * after.design.duration_s
+    assert chirps < sum(scratch.design.repeats) * scratch.design.duration_s
+    together = predict(information, after.design, paper)
+    assert together == pytest.approx(after.precision)
+    assert all(together[n] < predict(information, None, paper)[n] for n in PRECISION_NAMES)
+    done = [Design((a,), (n,), 60.0, 1.0, 15.0, 0.0) for a, n in ((5.0, 40), (10.0, 40))]
+    enough = recommend(information, DEFAULT_TARGETS_PERCENT, 10.0, recorded=done)
+    assert enough.design is None and not enough.unmet
+
+
+def test_dtid_plan_after_a_recording_plans_its_follow_up(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """The paper's test recorded and identified, then `dtid plan --prior ID.json --after REC`."""
+    recording = tmp_path / "paper.blf"
+    assert main(["simulate", str(recording), "--duration", "30"]) == 0
+    identification = tmp_path / "id.json"
+    identification.write_text(
+        json.dumps(
+            {
+                "parameters": {
+                    **theta_from_parameters(reference_parameters()),
+                    **reference_parameters().as_dict(),
+                },
+                "T_loss": 15.0,
+            }
+        )
+    )
+    out = tmp_path / "follow.json"
+    args = ["plan", "--prior", str(identification), "--after", str(recording), "--seeds", "3"]
+    assert main([*args, "--max-amplitude", "10", "--json", str(out)]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "plan")
+    runs = document["recorded"]["runs"]
+    assert sorted(round(r["amplitude_nm"]) for r in runs) == [5, 10]
+    assert all(abs(r["duration_s"] - 30) < 0.5 for r in runs)
+    assert document["plan"]["validation_nm"] == 0
+    assert set(document["identify_nm"]) >= {5.0, 10.0}
+    assert "identify the recordings of both tests together with --identify" in (
+        capsys.readouterr().out
+    )

@@ -6,23 +6,40 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from dtid.acquisition.config import load_config
-from dtid.cli.commands.common import positive_float
+from dtid.cli.commands.common import (
+    add_interface_options,
+    add_vehicle_option,
+    positive_float,
+    vehicle_data,
+)
+from dtid.cli.commands.diagnose import read_identification
 from dtid.errors import ConfigError
 from dtid.identification.planning.design import (
     DEFAULT_MAX_TIME_S,
     PRECISION_NAMES,
     SIGMAS,
     VALIDATION_NM,
+    Design,
     parse_targets,
     plan_document,
     plan_test,
 )
 from dtid.identification.planning.information import DEFAULT_SEEDS
+from dtid.identification.search.identify import amplitude_levels, split_runs
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
-from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.simulator.parameters import (
+    NAMES,
+    DrivetrainParameters,
+    load_parameters,
+    parse_parameters,
+    reference_parameters,
+)
 from dtid.simulator.simulate import SimulationOptions
+from dtid.workflow import measured_tests
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -39,7 +56,18 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--prior",
         type=Path,
-        help="parameter set (TOML) to plan for (default: the reference vehicle)",
+        help="parameters to plan for: a parameter set (TOML) or a dtid identify JSON (its "
+        "parameters; default: the reference vehicle)",
+    )
+    parser.add_argument(
+        "--after",
+        type=Path,
+        nargs="+",
+        default=[],
+        metavar="RECORDING",
+        help="plan a follow-up to these recordings: their identifying runs count in, the new "
+        "test's time only is minimised, the idle speed is theirs (give --prior their "
+        "identification's JSON)",
     )
     parser.add_argument(
         "--target",
@@ -53,10 +81,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--setpoint",
         type=positive_float,
-        default=IdleController().setpoint_rpm,
         metavar="RPM",
         help="the vehicle's idle speed, rpm: the mean torque's Nyquist frequency (rpm/60 Hz "
-        "for four cylinders) caps the band (default: %(default)s)",
+        f"for four cylinders) caps the band (default: --after's, else "
+        f"{IdleController().setpoint_rpm:g})",
     )
     parser.add_argument(
         "--config",
@@ -79,9 +107,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--validation",
         type=float,
-        default=VALIDATION_NM,
         metavar="NM",
-        help=f"validation chirp amplitude, N*m; 0 for none (default: {VALIDATION_NM:g})",
+        help=f"validation chirp amplitude, N*m; 0 for none (default: {VALIDATION_NM:g}; with "
+        "--after 0, the first test's stands)",
     )
     parser.add_argument(
         "--seeds",
@@ -91,7 +119,45 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--json", type=Path, help="write the plan as JSON ([test] plan = FILE)")
     parser.add_argument("--plot", type=Path, help="plot precision against test time")
+    add_interface_options(parser)
+    add_vehicle_option(parser)
     parser.set_defaults(run=run)
+
+
+def read_prior(path: Path | None) -> DrivetrainParameters:
+    """The parameters of --prior: a parameter TOML or an identification JSON."""
+    if path is None:
+        return reference_parameters()
+    if path.suffix.lower() != ".json":
+        return load_parameters(path)
+    document = read_identification(path)
+    table = {name: document["parameters"].get(name) for name in NAMES}
+    table["T_loss"] = document.get("T_loss")
+    missing = [name for name, value in table.items() if not isinstance(value, int | float)]
+    if missing:
+        raise ConfigError(f"--prior {path}: the identification has no {missing[0]!r}")
+    return parse_parameters(table, str(path))
+
+
+def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], float | None]:
+    """The identifying runs of --after's recordings, each as a design, and their idle speed."""
+    if not args.after:
+        return [], None
+    tests = measured_tests(args.after, args.dbc, args.signals, vehicle_data(args))
+    identifying, _ = split_runs(tests)
+    levels = amplitude_levels(
+        t.estimates[i].run.amplitude_nm
+        for t, runs in zip(tests, identifying, strict=True)
+        for i in runs
+    )
+    designs = []
+    for test, runs in zip(tests, identifying, strict=True):
+        for i in runs:
+            run = test.estimates[i].run
+            level = min(levels, key=lambda a: abs(a - run.amplitude_nm))
+            low, high = sorted((run.f1_hz, run.f2_hz))
+            designs.append(Design((level,), (1,), run.duration_s, low, high, validation_nm=0.0))
+    return designs, float(np.mean([t.setpoint_rpm for t in tests]))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -101,17 +167,23 @@ def run(args: argparse.Namespace) -> int:
     cap = args.max_amplitude or safety.max_amplitude_nm
     if args.seeds < 2:
         raise ConfigError("--seeds must be at least 2 (the residual's variance needs a spread)")
-    if args.validation < 0:
+    validation = args.validation
+    if validation is None:
+        validation = 0.0 if args.after else VALIDATION_NM
+    if validation < 0:
         raise ConfigError("--validation must be >= 0 N*m (0: no validation chirp)")
-    prior = load_parameters(args.prior) if args.prior else reference_parameters()
+    prior = read_prior(args.prior)
+    recorded, idle = recorded_runs(args)
+    setpoint = args.setpoint or idle or IdleController().setpoint_rpm
     info, recommendation = plan_test(
         prior,
         targets,
         replace(safety, max_amplitude_nm=cap),
         max_time_s=args.max_time,
-        validation_nm=args.validation,
+        validation_nm=validation,
         seeds=args.seeds,
-        options=SimulationOptions(controller=IdleController(setpoint_rpm=args.setpoint)),
+        options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
+        recorded=recorded,
     )
     limits = {
         "max_amplitude_nm": cap,
@@ -125,34 +197,50 @@ def run(args: argparse.Namespace) -> int:
     if args.plot:
         from dtid.identification.planning.figure import plot_plan
 
-        plot_plan(info, recommendation.design, targets, args.plot)
+        plot_plan(info, recommendation, targets, args.plot)
         print(f"plot: {args.plot}")
     return 0
 
 
 def print_plan(document: dict) -> None:
     """The recommended plan, the precision of both plans against the targets, what is unmet."""
-    plan, paper = document["plan"], document["paper"]
-    chirps = " + ".join(
-        f"{n} x {a:g} N*m" for a, n in zip(plan["amplitudes_nm"], plan["repeats"], strict=True)
-    )
+    plan, paper, recorded = document["plan"], document["paper"], document["recorded"]
     verdict = "meets every target" if document["meets_targets"] else "does NOT meet every target"
-    print(
-        f"recommended: {chirps}, {plan['duration_s']:g} s chirps over {plan['f1_hz']:g}-"
-        f"{plan['f2_hz']:g} Hz, validation {plan['validation_nm']:g} N*m, at "
-        f"{plan['setpoint_rpm']:.0f} rpm: {document['test_time_s'] / 60:.1f} min; {verdict}"
-    )
+    if recorded["runs"]:
+        print(
+            f"recorded: {len(recorded['runs'])} identifying runs at "
+            f"{', '.join(f'{a:g}' for a in sorted({r['amplitude_nm'] for r in recorded['runs']}))} "
+            "N*m"
+        )
+    if plan is None:
+        print("the recorded runs meet every target: no further test is needed")
+    else:
+        chirps = " + ".join(
+            f"{n} x {a:g} N*m" for a, n in zip(plan["amplitudes_nm"], plan["repeats"], strict=True)
+        )
+        print(
+            f"recommended{' follow-up' if recorded['runs'] else ''}: {chirps}, "
+            f"{plan['duration_s']:g} s chirps over {plan['f1_hz']:g}-{plan['f2_hz']:g} Hz, "
+            f"validation {plan['validation_nm']:g} N*m, at {plan['setpoint_rpm']:.0f} rpm: "
+            f"{document['test_time_s'] / 60:.1f} min; {verdict}"
+        )
     sigmas = document["sigmas"]
+    first = "recorded %" if recorded["runs"] else "paper %"
     print(
-        f"{'':>6} {'target %':>9} {'paper %':>9} {'plan %':>9}   (precision at {sigmas:g} sigma; "
-        f"paper: {paper['test_time_s'] / 60:.1f} min)"
+        f"{'':>6} {'target %':>9} {first:>10} {'plan %':>9}   (precision at {sigmas:g} sigma; "
+        f"paper's test: {paper['test_time_s'] / 60:.1f} min)"
     )
     targets = document["targets_percent"]
+    before = recorded["predicted_precision"] or paper["predicted_precision"]
     for name, value in document["predicted_precision"].items():
         target = f"{targets[name]:g}" if name in targets else "-"
-        old = 100 * sigmas * paper["predicted_precision"][name]
-        print(f"{name:>6} {target:>9} {old:9.1f} {100 * sigmas * value:9.1f}")
+        print(
+            f"{name:>6} {target:>9} {100 * sigmas * before[name]:10.1f} {100 * sigmas * value:9.1f}"
+        )
     for unmet in document["unmet"]:
         print(f"unmet {unmet['name']}: {unmet['reason']}")
     for amplitude, why in document["information"]["excluded"].items():
         print(f"not used: {amplitude} N*m, {why}")
+    if recorded["runs"] and plan is not None:
+        levels = " ".join(f"{a:g}" for a in document["identify_nm"])
+        print(f"identify the recordings of both tests together with --identify {levels}")

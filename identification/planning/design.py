@@ -232,26 +232,42 @@ def _sandwich(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return inverse @ b @ inverse
 
 
-def predict(info: PlanInformation, design: Design) -> dict[str, float]:
-    """Each parameter's predicted relative standard deviation (1 sigma) for a design.
+def information(info: PlanInformation, designs: Sequence[Design]) -> tuple[np.ndarray, np.ndarray]:
+    """The sandwich's two sums over every run of the designs: sum w J^T J, sum w^2 J^T Sigma J.
 
     Raises
     ------
     ConfigError
-        If an amplitude of the design was not measured, or its band leaves too few bins.
+        If an amplitude of a design was not measured, or its band leaves too few bins.
     """
     a = np.zeros((len(THETA_NAMES), len(THETA_NAMES)))
     b = np.zeros_like(a)
-    for amplitude, repeats in zip(design.amplitudes_nm, design.repeats, strict=True):
-        level = _level(info, amplitude)
-        block = _block(info, level, design.duration_s, (design.f1_hz, design.f2_hz))
-        if block is None:
-            raise ConfigError(
-                f"a {design.duration_s:g} s chirp over {design.f1_hz:g}-{design.f2_hz:g} Hz leaves "
-                "too few frequency bins to identify ten parameters"
-            )
-        a += repeats * block.a
-        b += repeats * block.b
+    for design in designs:
+        for amplitude, repeats in zip(design.amplitudes_nm, design.repeats, strict=True):
+            level = _level(info, amplitude)
+            block = _block(info, level, design.duration_s, (design.f1_hz, design.f2_hz))
+            if block is None:
+                raise ConfigError(
+                    f"a {design.duration_s:g} s chirp over {design.f1_hz:g}-{design.f2_hz:g} Hz "
+                    "leaves too few frequency bins to identify ten parameters"
+                )
+            a += repeats * block.a
+            b += repeats * block.b
+    return a, b
+
+
+def predict(
+    info: PlanInformation, design: Design | None, recorded: Sequence[Design] = ()
+) -> dict[str, float]:
+    """Each parameter's predicted relative standard deviation (1 sigma) for a design, after the
+    runs already ``recorded`` (identified together with them); ``design`` None: those alone.
+
+    Raises
+    ------
+    ConfigError
+        As :func:`information`.
+    """
+    a, b = information(info, [*recorded, *([design] if design else [])])
     sd = _relative_sd(info, _sandwich(a, b))
     return {name: float(value) for name, value in zip(PRECISION_NAMES, sd, strict=True)}
 
@@ -302,9 +318,11 @@ class Recommendation:
     Attributes
     ----------
     design
-        The shortest design meeting every target, or the closest within the limits.
+        The shortest design meeting every target, or the closest within the limits; None when
+        the runs already recorded meet every target.
     precision
-        Its predicted relative standard deviations (1 sigma), by :data:`PRECISION_NAMES`.
+        Its predicted relative standard deviations (1 sigma), by :data:`PRECISION_NAMES`, with
+        the recorded runs.
     unmet
         The targets it does not reach (empty when it meets them all).
     excluded
@@ -313,11 +331,12 @@ class Recommendation:
         Designs evaluated.
     """
 
-    design: Design
+    design: Design | None
     precision: dict[str, float]
     unmet: tuple[Unmet, ...]
     excluded: dict[float, str]
     designs_tried: int
+    recorded: tuple[Design, ...] = ()
 
 
 def recommend(
@@ -327,8 +346,13 @@ def recommend(
     max_time_s: float = DEFAULT_MAX_TIME_S,
     validation_nm: float = VALIDATION_NM,
     speed_window_rpm: float = SafetyConfig().speed_window_rpm,
+    recorded: Sequence[Design] = (),
 ) -> Recommendation:
     """Search the shortest design that meets every target (see the module notes).
+
+    With runs already ``recorded`` (identified together with the new ones: a follow-up test),
+    the search counts their information in and the new test's time only; when they meet every
+    target alone, no design is recommended.
 
     Parameters
     ----------
@@ -346,6 +370,8 @@ def recommend(
     speed_window_rpm
         The daemon's safety window around the idle speed: an amplitude whose chirp took the
         speed further at the prior is left out.
+    recorded
+        The identifying runs recorded so far, each a design of its own.
 
     Raises
     ------
@@ -378,6 +404,12 @@ def recommend(
     names = [n for n in PRECISION_NAMES if n in targets]
     index = [PRECISION_NAMES.index(n) for n in names]
     needed = np.array([targets[n] / 100.0 / SIGMAS for n in names])
+    recorded = tuple(recorded)
+    a0, b0 = information(info, recorded)
+    if recorded:
+        so_far = predict(info, None, recorded)
+        if all(so_far[n] <= target for n, target in zip(names, needed, strict=True)):
+            return Recommendation(None, so_far, (), excluded, 0, recorded)
     counts = np.array(list(itertools.product(range(1, MAX_REPEATS + 1), repeat=2)))
     best: tuple[tuple[float, float], Design] | None = None
     closest: tuple[float, Design] | None = None
@@ -387,8 +419,8 @@ def recommend(
             blocks = [_block(info, level, duration, band) for level in (low, high)]
             if blocks[0] is None or blocks[1] is None:
                 continue
-            a = counts[:, 0, None, None] * blocks[0].a + counts[:, 1, None, None] * blocks[1].a
-            b = counts[:, 0, None, None] * blocks[0].b + counts[:, 1, None, None] * blocks[1].b
+            a = a0 + counts[:, 0, None, None] * blocks[0].a + counts[:, 1, None, None] * blocks[1].a
+            b = b0 + counts[:, 0, None, None] * blocks[0].b + counts[:, 1, None, None] * blocks[1].b
             sd = _relative_sd(info, _sandwich(a, b))[:, index]
             worst = np.max(sd / needed, axis=1)
             for (n_low, n_high), ratio in zip(counts, worst, strict=True):
@@ -416,13 +448,13 @@ def recommend(
             f"{shortest.test_time_s:g} s"
         )
     design = best[1] if best is not None else closest[1]
-    precision = predict(info, design)
+    precision = predict(info, design, recorded)
     unmet = tuple(
-        _unmet(name, targets[name], precision[name], design, max_time_s)
+        _unmet(name, targets[name], precision[name], design, max_time_s, recorded)
         for name in names
         if SIGMAS * precision[name] * 100.0 > targets[name]
     )
-    return Recommendation(design, precision, unmet, excluded, tried)
+    return Recommendation(design, precision, unmet, excluded, tried, recorded)
 
 
 def plan_test(
@@ -433,18 +465,20 @@ def plan_test(
     validation_nm: float = VALIDATION_NM,
     seeds: int = DEFAULT_SEEDS,
     options: SimulationOptions | None = None,
+    recorded: Sequence[Design] = (),
 ) -> tuple[PlanInformation, Recommendation]:
     """Measure the candidate amplitudes' information at a prior and recommend a test.
 
     The candidates are :data:`CANDIDATE_AMPLITUDES_NM` up to ``safety.max_amplitude_nm`` and
     the validation amplitude; the speed window is ``safety``'s too (see :func:`recommend`).
     ``options`` is the simulated vehicle (its idle speed, engine, noise; the reference's by
-    default).
+    default); ``recorded`` the identifying runs recorded so far (a follow-up test).
     """
     cap = safety.max_amplitude_nm
     amplitudes = [a for a in CANDIDATE_AMPLITUDES_NM if a <= cap * (1 + 1e-9)]
-    if validation_nm and all(abs(a - validation_nm) > 1e-9 for a in amplitudes):
-        amplitudes.append(validation_nm)
+    for extra in [validation_nm, *(a for d in recorded for a in d.amplitudes_nm)]:
+        if extra and all(abs(a - extra) > AMPLITUDE_MATCH * extra for a in amplitudes):
+            amplitudes.append(extra)
     info = measure_information(prior, amplitudes, options=options, seeds=seeds)
     recommendation = recommend(
         info,
@@ -453,14 +487,27 @@ def plan_test(
         max_time_s=max_time_s,
         validation_nm=validation_nm,
         speed_window_rpm=safety.speed_window_rpm,
+        recorded=recorded,
     )
     return info, recommendation
 
 
-def _unmet(name: str, target: float, sd: float, design: Design, max_time_s: float) -> Unmet:
+def _chirp_time(design: Design) -> float:
+    return sum(design.repeats) * design.duration_s
+
+
+def _unmet(
+    name: str,
+    target: float,
+    sd: float,
+    design: Design,
+    max_time_s: float,
+    recorded: Sequence[Design],
+) -> Unmet:
     predicted = SIGMAS * sd * 100.0
-    chirp_time = sum(design.repeats) * design.duration_s
-    needed = chirp_time * (predicted / target) ** 2
+    earlier = sum(_chirp_time(d) for d in recorded)
+    chirp_time = _chirp_time(design)
+    needed = (earlier + chirp_time) * (predicted / target) ** 2 - earlier
     amplitudes = " and ".join(f"{a:g}" for a in design.amplitudes_nm)
     reason = (
         f"{predicted:.1f} % at {SIGMAS:g} sigma within --max-time {max_time_s:g} s; the precision "
@@ -477,13 +524,32 @@ def plan_document(
     limits: Mapping[str, float],
 ) -> dict[str, object]:
     """``dtid plan``'s JSON (docs/schemas/plan.schema.json): the recommended plan, its predicted
-    precision (relative, 1 sigma), test time and unmet targets, and the paper's plan beside it."""
+    precision (relative, 1 sigma, with the runs recorded so far), test time and unmet targets,
+    the amplitudes that identify, the recorded runs and their precision, and the paper's plan
+    beside it."""
     design = recommendation.design
     paper = predict(info, PAPER_DESIGN)
+    recorded = recommendation.recorded
+    identify = sorted(
+        {a for d in [*recorded, *([design] if design else [])] for a in d.amplitudes_nm}
+    )
     return {
-        "plan": design.as_dict(info.setpoint_rpm),
+        "plan": design.as_dict(info.setpoint_rpm) if design else None,
         "predicted_precision": _rounded(recommendation.precision),
-        "test_time_s": design.test_time_s,
+        "test_time_s": design.test_time_s if design else 0.0,
+        "identify_nm": identify,
+        "recorded": {
+            "runs": [
+                {
+                    "amplitude_nm": d.amplitudes_nm[0],
+                    "duration_s": d.duration_s,
+                    "f1_hz": d.f1_hz,
+                    "f2_hz": d.f2_hz,
+                }
+                for d in recorded
+            ],
+            "predicted_precision": _rounded(predict(info, None, recorded)) if recorded else None,
+        },
         "unmet": [u.as_dict() for u in recommendation.unmet],
         "meets_targets": not recommendation.unmet,
         "targets_percent": dict(targets),

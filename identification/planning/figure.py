@@ -20,6 +20,7 @@ from dtid.identification.planning.design import (
     PRECISION_NAMES,
     SIGMAS,
     Design,
+    Recommendation,
     predict,
     scaled,
 )
@@ -34,22 +35,31 @@ POINTS = 16
 recommended plan's test time."""
 
 
-def plan_figure(info: PlanInformation, recommended: Design, targets: Mapping[str, float]) -> Figure:
-    """Draw the two panels (see the module notes)."""
-    figure = new_figure(figsize=(11, 4.8), layout="constrained")
-    axes = figure.subplots(1, 2, sharey=True)
+def plan_figure(
+    info: PlanInformation, recommendation: Recommendation, targets: Mapping[str, float]
+) -> Figure:
+    """Draw the two panels (see the module notes); a follow-up's panel counts the recorded runs
+    in, and without a recommended test (the recorded runs meet the targets) only the paper's
+    panel is drawn."""
+    design, recorded = recommendation.design, recommendation.recorded
+    panels: list[tuple[str, Design, tuple[Design, ...]]] = [("the paper's plan", PAPER_DESIGN, ())]
+    if design is not None:
+        title = "recommended follow-up" if recorded else "recommended plan"
+        panels.append((title, design, recorded))
+    figure = new_figure(figsize=(5.5 * len(panels), 4.8), layout="constrained")
+    axes = np.atleast_1d(figure.subplots(1, len(panels), sharey=True))
     names = [n for n in PRECISION_NAMES if n in targets]
     colours = {n: f"C{i % 10}" for i, n in enumerate(names)}
     styles = {n: "-" if i < 10 else "--" for i, n in enumerate(names)}
-    for ax, (title, design) in zip(
-        axes, (("the paper's plan", PAPER_DESIGN), ("recommended plan", recommended)), strict=True
-    ):
-        longest = 2 * recommended.test_time_s / design.test_time_s
-        factors = np.geomspace(1 / max(design.repeats), max(longest, 1.0), POINTS)
-        variants = sorted({scaled(design, f) for f in factors}, key=lambda d: d.test_time_s)
+    longest_s = max(d.test_time_s for _, d, _ in panels)
+    for ax, (title, shown, before) in zip(axes, panels, strict=True):
+        factors = np.geomspace(
+            1 / max(shown.repeats), max(2 * longest_s / shown.test_time_s, 1.0), POINTS
+        )
+        variants = sorted({scaled(shown, f) for f in factors}, key=lambda d: d.test_time_s)
         times = [d.test_time_s / 60 for d in variants]
-        curves = [predict(info, d) for d in variants]
-        point = predict(info, design)
+        curves = [predict(info, d, before) for d in variants]
+        point = predict(info, shown, before)
         for name in names:
             ax.plot(
                 times,
@@ -58,27 +68,30 @@ def plan_figure(info: PlanInformation, recommended: Design, targets: Mapping[str
                 color=colours[name],
                 label=name,
             )
-            ax.plot(design.test_time_s / 60, 100 * SIGMAS * point[name], "o", color=colours[name])
+            ax.plot(shown.test_time_s / 60, 100 * SIGMAS * point[name], "o", color=colours[name])
         for level in sorted(set(targets.values())):
             ax.axhline(level, color="0.4", linestyle=":", linewidth=1)
         amplitudes = " + ".join(
-            f"{n} x {a:g}" for a, n in zip(design.amplitudes_nm, design.repeats, strict=True)
+            f"{n} x {a:g}" for a, n in zip(shown.amplitudes_nm, shown.repeats, strict=True)
         )
         ax.set_title(
-            f"{title}: {amplitudes} N*m, {design.duration_s:g} s, "
-            f"{design.f1_hz:g}-{design.f2_hz:g} Hz",
+            f"{title}: {amplitudes} N*m, {shown.duration_s:g} s, "
+            f"{shown.f1_hz:g}-{shown.f2_hz:g} Hz",
             fontsize=9,
         )
-        ax.set_xlabel("whole test, min")
+        ax.set_xlabel("whole test, min" + (" (after the recorded runs)" if before else ""))
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel(f"predicted precision at {SIGMAS:g} sigma, % (dotted: targets)")
-    axes[1].legend(fontsize=7, ncol=2, loc="upper right")
+    axes[-1].legend(fontsize=7, ncol=2, loc="upper right")
     return figure
 
 
 def plot_plan(
-    info: PlanInformation, recommended: Design, targets: Mapping[str, float], path: str | Path
+    info: PlanInformation,
+    recommendation: Recommendation,
+    targets: Mapping[str, float],
+    path: str | Path,
 ) -> Path:
     """Save :func:`plan_figure` as PNG."""
-    return save_figure(plan_figure(info, recommended, targets), path)
+    return save_figure(plan_figure(info, recommendation, targets), path)
