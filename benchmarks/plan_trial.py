@@ -7,7 +7,9 @@ own random idle loop, ECU timing, engine and noise
 reads the loop from each recording and is told the engine, as in that trial. Each seed is a new
 recording of the recommended test. Two measures of the error, each against the targets and
 against the prediction (both at the prior, what the engineer saw, and at the truth, what the
-prediction gives when the prior is right):
+prediction gives when the prior is right). With ``--adaptive`` the paper's test is recorded
+first and identified, and the follow-up is planned at its result (``dtid plan --prior ID.json
+--after REC``); both recordings identify together:
 
 * ``--linearised N``: eq. (17)'s first-order estimator at the truth
   (:func:`dtid.identification.search.sensitivity.linearised_step`) on N recordings: seconds each;
@@ -35,14 +37,18 @@ import numpy as np
 
 from benchmarks.identification_trial import draw_truth, draw_vehicle
 from dtid.acquisition.config import SafetyConfig
+from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import run_identification
 from dtid.identification.planning.design import (
     DEFAULT_TARGETS_PERCENT,
     PRECISION_NAMES,
     SIGMAS,
+    VALIDATION_NM,
+    Design,
     plan_test,
     predict,
+    recorded_designs,
 )
 from dtid.identification.planning.information import RESOLUTION_HZ, measure_information
 from dtid.identification.samples.testdata import from_simulation
@@ -94,6 +100,11 @@ def main() -> None:
     parser.add_argument("--searches", type=int, default=0, help="recordings, whole searches")
     parser.add_argument("--max-time", type=float, default=1800.0, help="plan's time limit, s")
     parser.add_argument("--independent", type=Path, help="a vehicle folder with its truth.toml")
+    parser.add_argument(
+        "--adaptive",
+        action="store_true",
+        help="record the paper's test first, identify it, plan the follow-up at its result",
+    )
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
 
@@ -102,29 +113,48 @@ def main() -> None:
     else:
         truth, vehicle = draw_truth(args.truth), draw_vehicle(args.truth)
     setpoint = vehicle.controller.setpoint_rpm
+    known = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
+
+    def record(plan: TestPlan, seed: int) -> MeasuredTest:
+        result = simulate(truth, plan, vehicle, seed=seed)
+        return MeasuredTest.from_data(f"seed {seed}", from_simulation(result), RESOLUTION_HZ, known)
+
+    recorded: list[Design] = []
+    plans = []
+    if args.adaptive:  # the paper's test first, identified; the follow-up planned at its result
+        first = record(TestPlan(), 8000)
+        report = run_identification([first], reference_parameters(), profile_points=0)
+        prior, recorded = report.identification.parameters, recorded_designs([first])
+        plans.append(TestPlan())
+        setpoint = first.setpoint_rpm
+    else:
+        prior = reference_parameters()
     _, recommendation = plan_test(
-        reference_parameters(),
+        prior,
         DEFAULT_TARGETS_PERCENT,
         SafetyConfig(),
         max_time_s=args.max_time,
+        validation_nm=0.0 if recorded else VALIDATION_NM,
         options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
+        recorded=recorded,
     )
     design = recommendation.design
-    plan = design.test_plan()
+    assert design is not None, "the paper's test met every target"
+    plans.append(design.test_plan())
+    identify_nm = sorted({a for d in [*recorded, design] for a in d.amplitudes_nm})
     at_prior = recommendation.precision
-    known = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
-    information = measure_information(truth, design.amplitudes_nm, options=vehicle, vehicle=known)
-    at_truth = predict(information, design)
+    information = measure_information(truth, identify_nm, options=vehicle, vehicle=known)
+    at_truth = predict(information, design, recorded)
     print(
-        f"truth {args.independent or args.truth} (idle {setpoint:.0f} rpm): plan {design}, "
+        f"truth {args.independent or args.truth} (idle {setpoint:.0f} rpm): "
+        f"{'after the paper test, ' if recorded else ''}plan {design}, "
         f"{design.test_time_s / 60:.1f} min; unmet at the prior: "
         f"{[u.name for u in recommendation.unmet] or 'none'}",
         flush=True,
     )
 
-    def recording(seed: int) -> MeasuredTest:
-        result = simulate(truth, plan, vehicle, seed=9000 + seed)
-        return MeasuredTest.from_data(f"seed {seed}", from_simulation(result), RESOLUTION_HZ, known)
+    def recordings(seed: int) -> list[MeasuredTest]:
+        return [record(plan, 9000 + 500 * k + seed) for k, plan in enumerate(plans)]
 
     linearised = []
     par = Parameterization.around(reference_parameters(), truth.T_loss, truth.K)
@@ -133,20 +163,29 @@ def main() -> None:
     unit = par.unit(values[None])[0]
     jac = None
     for seed in range(args.linearised):
-        test = recording(seed)
-        (runs,), _ = split_runs([test])
-        drv = [test.estimates[i].drv_db for i in runs]
-        objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=seed)
+        tests = recordings(seed)
+        identifying, _ = split_runs(tests, identify_nm)
+        drv = [
+            [t.estimates[i].drv_db for i in runs]
+            for t, runs in zip(tests, identifying, strict=True)
+        ]
+        objective = Objective(
+            par, [t.model_test(runs) for t, runs in zip(tests, identifying, strict=True)], drv
+        ).replacing(seed=seed)
         if jac is None:
             jac, _ = jacobian(objective, unit)
-        step = linearised_step(jac, objective.residuals(unit[None])[0], [len(d) for d in drv])
+        sizes = [len(d) for per_test in drv for d in per_test]
+        step = linearised_step(jac, objective.residuals(unit[None])[0], sizes)
         estimate = dict(zip(THETA_NAMES, par.theta((unit + step)[None])[0], strict=True))
         linearised.append(relative_errors(estimate, truth))
     searched = []
     for seed in range(args.searches):
         began = time.perf_counter()
         report = run_identification(
-            [recording(100 + seed)], reference_parameters(), profile_points=0
+            recordings(100 + seed),
+            reference_parameters(),
+            identify_amplitudes=identify_nm,
+            profile_points=0,
         )
         searched.append(relative_errors(report.identification.theta, truth))
         print(f"search {seed}: {time.perf_counter() - began:.0f} s", flush=True)
@@ -182,6 +221,7 @@ def main() -> None:
             {
                 "truth": str(args.independent) if args.independent else args.truth,
                 "setpoint_rpm": setpoint,
+                "adaptive": args.adaptive,
                 "plan": design.as_dict(setpoint),
                 "test_time_s": design.test_time_s,
                 "unmet_at_prior": [u.as_dict() for u in recommendation.unmet],

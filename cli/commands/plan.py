@@ -26,9 +26,9 @@ from dtid.identification.planning.design import (
     parse_targets,
     plan_document,
     plan_test,
+    recorded_designs,
 )
 from dtid.identification.planning.information import DEFAULT_SEEDS
-from dtid.identification.search.identify import amplitude_levels, split_runs
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import (
@@ -144,20 +144,7 @@ def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], float | None]
     if not args.after:
         return [], None
     tests = measured_tests(args.after, args.dbc, args.signals, vehicle_data(args))
-    identifying, _ = split_runs(tests)
-    levels = amplitude_levels(
-        t.estimates[i].run.amplitude_nm
-        for t, runs in zip(tests, identifying, strict=True)
-        for i in runs
-    )
-    designs = []
-    for test, runs in zip(tests, identifying, strict=True):
-        for i in runs:
-            run = test.estimates[i].run
-            level = min(levels, key=lambda a: abs(a - run.amplitude_nm))
-            low, high = sorted((run.f1_hz, run.f2_hz))
-            designs.append(Design((level,), (1,), run.duration_s, low, high, validation_nm=0.0))
-    return designs, float(np.mean([t.setpoint_rpm for t in tests]))
+    return recorded_designs(tests), float(np.mean([t.setpoint_rpm for t in tests]))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -239,6 +226,8 @@ def print_plan(document: dict) -> None:
         )
     for unmet in document["unmet"]:
         print(f"unmet {unmet['name']}: {unmet['reason']}")
+    for note in document["notes"]:
+        print(f"note: {note}")
     for amplitude, why in document["information"]["excluded"].items():
         print(f"not used: {amplitude} N*m, {why}")
     if recorded["runs"] and plan is not None:

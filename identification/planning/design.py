@@ -31,6 +31,7 @@ from dtid.acquisition.plan import TestPlan, in_rounds
 from dtid.errors import ConfigError
 from dtid.identification.frf.closed_loop import sweep_edge_hz
 from dtid.identification.frf.runs import ChirpRun
+from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.planning.information import (
     DEFAULT_SEEDS,
     RESOLUTION_HZ,
@@ -38,10 +39,10 @@ from dtid.identification.planning.information import (
     PlanInformation,
     measure_information,
 )
-from dtid.identification.search.identify import AMPLITUDE_MATCH
-from dtid.identification.search.parameterization import THETA_NAMES
+from dtid.identification.search.identify import AMPLITUDE_MATCH, amplitude_levels, split_runs
+from dtid.identification.search.parameterization import PASSENGER_CAR_RANGES, THETA_NAMES
 from dtid.simulator.angle_grid import N_CYL
-from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.parameters import UNITS, DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions
 
 PRECISION_NAMES: tuple[str, ...] = ("J1", "J2", "J3", *THETA_NAMES)
@@ -69,6 +70,11 @@ DEFAULT_MAX_TIME_S = 1800.0
 oil and coolant temperatures (and with them its friction) stay close to constant."""
 VALIDATION_NM = 2.0
 """The validation chirp's amplitude, N*m (the paper's A3)."""
+PRIOR_FLOOR = 0.05
+"""Least prior value planned for, as a fraction of the top of the parameter's passenger-car
+range (:data:`dtid.identification.search.parameterization.PASSENGER_CAR_RANGES`): a prior of zero
+(a first test that found no friction, say) has no relative precision to plan for, and its
+information matrix is singular there."""
 CANDIDATE_AMPLITUDES_NM = (2.0, 3.0, 5.0, 7.0, 10.0, 15.0, 20.0, 25.0, 30.0)
 """Amplitudes the search chooses from (those up to the cap), N*m."""
 
@@ -457,6 +463,44 @@ def recommend(
     return Recommendation(design, precision, unmet, excluded, tried, recorded)
 
 
+def recorded_designs(tests: Sequence[MeasuredTest]) -> list[Design]:
+    """The identifying runs of measured tests (the default choice:
+    :func:`dtid.identification.search.identify.split_runs`), each as a design of its own."""
+    identifying, _ = split_runs(tests)
+    levels = amplitude_levels(
+        t.estimates[i].run.amplitude_nm
+        for t, runs in zip(tests, identifying, strict=True)
+        for i in runs
+    )
+    designs = []
+    for test, runs in zip(tests, identifying, strict=True):
+        for i in runs:
+            run = test.estimates[i].run
+            level = min(levels, key=lambda a: abs(a - run.amplitude_nm))
+            low, high = sorted((run.f1_hz, run.f2_hz))
+            designs.append(Design((level,), (1,), run.duration_s, low, high, validation_nm=0.0))
+    return designs
+
+
+def planning_prior(prior: DrivetrainParameters) -> tuple[DrivetrainParameters, list[str]]:
+    """The prior with each stiffness, damping, friction and free play at least
+    :data:`PRIOR_FLOOR` of its passenger-car range's top, and a note for each raised."""
+    changes, notes = {}, []
+    for name, (_, top) in PASSENGER_CAR_RANGES.items():
+        if name in ("x1", "x12"):
+            continue
+        floor = PRIOR_FLOOR * top
+        value = getattr(prior, name)
+        if value < floor:
+            changes[name] = floor
+            notes.append(
+                f"{name} = {value:.4g} in the prior is planned for as {floor:.4g} {UNITS[name]} "
+                f"({100 * PRIOR_FLOOR:g} % of a passenger car's largest): its relative "
+                "precision needs a value to be relative to"
+            )
+    return prior.replace(**changes), notes
+
+
 def plan_test(
     prior: DrivetrainParameters,
     targets: Mapping[str, float],
@@ -479,7 +523,9 @@ def plan_test(
     for extra in [validation_nm, *(a for d in recorded for a in d.amplitudes_nm)]:
         if extra and all(abs(a - extra) > AMPLITUDE_MATCH * extra for a in amplitudes):
             amplitudes.append(extra)
+    prior, notes = planning_prior(prior)
     info = measure_information(prior, amplitudes, options=options, seeds=seeds)
+    info = dataclasses.replace(info, notes=tuple(notes))
     recommendation = recommend(
         info,
         targets,
@@ -561,6 +607,7 @@ def plan_document(
             "test_time_s": PAPER_DESIGN.test_time_s,
         },
         "prior": info.prior.as_dict(),
+        "notes": list(info.notes),
         "information": {
             "amplitudes_nm": list(info.amplitudes_nm),
             "seeds": info.seeds,

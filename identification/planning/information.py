@@ -119,6 +119,8 @@ class PlanInformation:
         The idle speed measured in the simulated test, rpm.
     seeds
         Noise seeds averaged.
+    notes
+        What was changed of the prior to plan for it, one sentence each.
     """
 
     prior: DrivetrainParameters
@@ -127,6 +129,7 @@ class PlanInformation:
     levels: tuple[LevelInformation, ...]
     setpoint_rpm: float
     seeds: int
+    notes: tuple[str, ...] = ()
 
     @property
     def amplitudes_nm(self) -> tuple[float, ...]:
