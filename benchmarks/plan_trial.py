@@ -161,7 +161,7 @@ def main() -> None:
     true = theta_from_parameters(truth)
     values = np.array([true[n] for n in THETA_NAMES])
     unit = par.unit(values[None])[0]
-    jac = None
+    jacobians: dict[tuple[int, ...], np.ndarray] = {}  # by bins: a seed's idle speed may add one
     for seed in range(args.linearised):
         tests = recordings(seed)
         identifying, _ = split_runs(tests, identify_nm)
@@ -172,10 +172,10 @@ def main() -> None:
         objective = Objective(
             par, [t.model_test(runs) for t, runs in zip(tests, identifying, strict=True)], drv
         ).replacing(seed=seed)
-        if jac is None:
-            jac, _ = jacobian(objective, unit)
         sizes = [len(d) for per_test in drv for d in per_test]
-        step = linearised_step(jac, objective.residuals(unit[None])[0], sizes)
+        if tuple(sizes) not in jacobians:
+            jacobians[tuple(sizes)] = jacobian(objective, unit)[0]
+        step = linearised_step(jacobians[tuple(sizes)], objective.residuals(unit[None])[0], sizes)
         estimate = dict(zip(THETA_NAMES, par.theta((unit + step)[None])[0], strict=True))
         linearised.append(relative_errors(estimate, truth))
     searched = []
