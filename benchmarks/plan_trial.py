@@ -120,11 +120,13 @@ def main() -> None:
         return MeasuredTest.from_data(f"seed {seed}", from_simulation(result), RESOLUTION_HZ, known)
 
     recorded: list[Design] = []
+    held_out: list[float] = []
     plans = []
     if args.adaptive:  # the paper's test first, identified; the follow-up planned at its result
         first = record(TestPlan(), 8000)
         report = run_identification([first], reference_parameters(), profile_points=0)
-        prior, recorded = report.identification.parameters, recorded_designs([first])
+        prior = report.identification.parameters
+        recorded, held_out = recorded_designs([first])
         plans.append(TestPlan())
         setpoint = first.setpoint_rpm
     else:
@@ -137,6 +139,7 @@ def main() -> None:
         validation_nm=0.0 if recorded else VALIDATION_NM,
         options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
         recorded=recorded,
+        held_out_nm=held_out,
     )
     design = recommendation.design
     assert design is not None, "the paper's test met every target"

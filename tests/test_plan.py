@@ -282,6 +282,7 @@ def test_dtid_plan_after_a_recording_plans_its_follow_up(
     assert sorted(round(r["amplitude_nm"]) for r in runs) == [5, 10]
     assert all(abs(r["duration_s"] - 30) < 0.5 for r in runs)
     assert document["plan"]["validation_nm"] == 0
+    assert "validation amplitude" in document["information"]["excluded"]["2"]  # stays held out
     assert set(document["identify_nm"]) >= {5.0, 10.0}
     assert "identify the recordings of both tests together with --identify" in (
         capsys.readouterr().out

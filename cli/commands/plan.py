@@ -139,12 +139,14 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
     return parse_parameters(table, str(path))
 
 
-def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], float | None]:
-    """The identifying runs of --after's recordings, each as a design, and their idle speed."""
+def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], list[float], float | None]:
+    """The identifying runs of --after's recordings, each as a design, the amplitudes of their
+    validation runs, and their idle speed."""
     if not args.after:
-        return [], None
+        return [], [], None
     tests = measured_tests(args.after, args.dbc, args.signals, vehicle_data(args))
-    return recorded_designs(tests), float(np.mean([t.setpoint_rpm for t in tests]))
+    designs, held_out = recorded_designs(tests)
+    return designs, held_out, float(np.mean([t.setpoint_rpm for t in tests]))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -160,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
     if validation < 0:
         raise ConfigError("--validation must be >= 0 N*m (0: no validation chirp)")
     prior = read_prior(args.prior)
-    recorded, idle = recorded_runs(args)
+    recorded, held_out, idle = recorded_runs(args)
     setpoint = args.setpoint or idle or IdleController().setpoint_rpm
     info, recommendation = plan_test(
         prior,
@@ -171,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
         recorded=recorded,
+        held_out_nm=held_out,
     )
     limits = {
         "max_amplitude_nm": cap,

@@ -353,6 +353,7 @@ def recommend(
     validation_nm: float = VALIDATION_NM,
     speed_window_rpm: float = SafetyConfig().speed_window_rpm,
     recorded: Sequence[Design] = (),
+    held_out_nm: Sequence[float] = (),
 ) -> Recommendation:
     """Search the shortest design that meets every target (see the module notes).
 
@@ -378,6 +379,9 @@ def recommend(
         speed further at the prior is left out.
     recorded
         The identifying runs recorded so far, each a design of its own.
+    held_out_nm
+        The recorded tests' validation amplitudes, N*m: not candidates either (a new run there
+        would make them identify).
 
     Raises
     ------
@@ -394,6 +398,8 @@ def recommend(
             excluded[a] = "the validation chirp's amplitude (it must not identify)"
         elif validation_nm and a < validation_nm:
             excluded[a] = "below the validation chirp's (the two largest amplitudes identify)"
+        elif any(abs(a - h) <= AMPLITUDE_MATCH * h for h in held_out_nm):
+            excluded[a] = "the recorded tests' validation amplitude (it must stay held out)"
         elif level.speed_excursion_rpm > speed_window_rpm:
             excluded[a] = (
                 f"its chirp took the speed {level.speed_excursion_rpm:.0f} rpm from idle at the "
@@ -463,10 +469,16 @@ def recommend(
     return Recommendation(design, precision, unmet, excluded, tried, recorded)
 
 
-def recorded_designs(tests: Sequence[MeasuredTest]) -> list[Design]:
+def recorded_designs(tests: Sequence[MeasuredTest]) -> tuple[list[Design], list[float]]:
     """The identifying runs of measured tests (the default choice:
-    :func:`dtid.identification.search.identify.split_runs`), each as a design of its own."""
-    identifying, _ = split_runs(tests)
+    :func:`dtid.identification.search.identify.split_runs`), each as a design of its own, and
+    the amplitudes of the runs that validate, N*m."""
+    identifying, validating = split_runs(tests)
+    held_out = amplitude_levels(
+        t.estimates[i].run.amplitude_nm
+        for t, runs in zip(tests, validating, strict=True)
+        for i in runs
+    )
     levels = amplitude_levels(
         t.estimates[i].run.amplitude_nm
         for t, runs in zip(tests, identifying, strict=True)
@@ -479,7 +491,7 @@ def recorded_designs(tests: Sequence[MeasuredTest]) -> list[Design]:
             level = min(levels, key=lambda a: abs(a - run.amplitude_nm))
             low, high = sorted((run.f1_hz, run.f2_hz))
             designs.append(Design((level,), (1,), run.duration_s, low, high, validation_nm=0.0))
-    return designs
+    return designs, held_out
 
 
 def planning_prior(prior: DrivetrainParameters) -> tuple[DrivetrainParameters, list[str]]:
@@ -510,13 +522,15 @@ def plan_test(
     seeds: int = DEFAULT_SEEDS,
     options: SimulationOptions | None = None,
     recorded: Sequence[Design] = (),
+    held_out_nm: Sequence[float] = (),
 ) -> tuple[PlanInformation, Recommendation]:
     """Measure the candidate amplitudes' information at a prior and recommend a test.
 
     The candidates are :data:`CANDIDATE_AMPLITUDES_NM` up to ``safety.max_amplitude_nm`` and
     the validation amplitude; the speed window is ``safety``'s too (see :func:`recommend`).
     ``options`` is the simulated vehicle (its idle speed, engine, noise; the reference's by
-    default); ``recorded`` the identifying runs recorded so far (a follow-up test).
+    default); ``recorded`` the identifying runs recorded so far (a follow-up test) and
+    ``held_out_nm`` the amplitudes of their tests' validation runs.
     """
     cap = safety.max_amplitude_nm
     amplitudes = [a for a in CANDIDATE_AMPLITUDES_NM if a <= cap * (1 + 1e-9)]
@@ -534,6 +548,7 @@ def plan_test(
         validation_nm=validation_nm,
         speed_window_rpm=safety.speed_window_rpm,
         recorded=recorded,
+        held_out_nm=held_out_nm,
     )
     return info, recommendation
 
