@@ -228,9 +228,16 @@ def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFix
     assert "error:" in capsys.readouterr().err
 
 
-def test_an_unknown_target_names_the_known_ones(capsys: pytest.CaptureFixture) -> None:
+def test_a_bad_request_is_refused_in_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
     assert main(["plan", "--target", "stiffness=5"]) == 2
     assert "NAME one of J1" in capsys.readouterr().err
+    (tmp_path / "other.json").write_text('{"runs": []}')
+    assert main(["plan", "--prior", str(tmp_path / "other.json")]) == 2
+    assert "--prior" in capsys.readouterr().err
+    assert main(["plan", "--after", str(tmp_path / "missing.blf")]) == 2
+    assert "does not exist" in capsys.readouterr().err
 
 
 def test_a_follow_up_counts_the_recorded_runs_in(information: PlanInformation) -> None:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
 
+from dtid.errors import ConfigError
 from dtid.simulator.vehicle_data import VehicleData, load_vehicle_data
 
 
@@ -44,3 +46,19 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text} must be a number > 0")
     return value
+
+
+def read_identification(path: Path, option: str = "--identification") -> dict:
+    """An identification JSON given by ``option``, or a clear error."""
+    try:
+        document = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise ConfigError(f"cannot read {option} {path}: {error.strerror}") from None
+    except json.JSONDecodeError as error:
+        raise ConfigError(f"{option} {path} is not JSON: {error}") from None
+    if not isinstance(document, dict) or "parameters" not in document:
+        raise ConfigError(
+            f"{option} {path} is not an identification JSON (no 'parameters'): give "
+            "the file `dtid identify --json` wrote"
+        )
+    return document

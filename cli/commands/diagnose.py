@@ -14,12 +14,12 @@ and kept only where the fit improves significantly and the held-out runs improve
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
+    read_identification,
     vehicle_data,
 )
 from dtid.cli.commands.identify import (
@@ -30,7 +30,6 @@ from dtid.cli.commands.identify import (
     parse_bounds,
     search_settings,
 )
-from dtid.errors import ConfigError
 from dtid.identification.diagnosis.diagnose import Diagnosis, diagnose_document, diagnose_report
 from dtid.jsonfile import write_json
 from dtid.simulator.mechanisms import BY_NAME
@@ -67,22 +66,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--plot", type=Path, help="plot the mismatch map and the FRFs")
     add_interface_options(parser)
     parser.set_defaults(run=run)
-
-
-def read_identification(path: Path) -> dict:
-    """An identification JSON, or a clear error."""
-    try:
-        document = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise ConfigError(f"cannot read --identification {path}: {error.strerror}") from None
-    except json.JSONDecodeError as error:
-        raise ConfigError(f"--identification {path} is not JSON: {error}") from None
-    if not isinstance(document, dict) or "parameters" not in document:
-        raise ConfigError(
-            f"--identification {path} is not an identification JSON (no 'parameters'): give "
-            "the file `dtid identify --json` wrote"
-        )
-    return document
 
 
 def run(args: argparse.Namespace) -> int:

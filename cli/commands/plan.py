@@ -13,9 +13,9 @@ from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
     positive_float,
+    read_identification,
     vehicle_data,
 )
-from dtid.cli.commands.diagnose import read_identification
 from dtid.errors import ConfigError
 from dtid.identification.planning.design import (
     DEFAULT_MAX_TIME_S,
@@ -130,7 +130,7 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
         return reference_parameters()
     if path.suffix.lower() != ".json":
         return load_parameters(path)
-    document = read_identification(path)
+    document = read_identification(path, "--prior")
     table = {name: document["parameters"].get(name) for name in NAMES}
     table["T_loss"] = document.get("T_loss")
     missing = [name for name, value in table.items() if not isinstance(value, int | float)]
