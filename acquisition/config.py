@@ -149,9 +149,16 @@ class WorkerConfig:
         After the validation chirp, diagnose the identified model (``dtid diagnose``: does it
         explain the recordings, and where not), publish the diagnosis on ``[pipeline] results``
         (topic ``diagnosis``) and write ``diagnosis.json`` beside the session's log.
+    plan_follow_up
+        After the identification, plan the follow-up test at the identified parameters with the
+        session's runs counted in (``dtid plan --prior identification.json --after LOG``),
+        publish it (topic ``plan``) and write ``follow-up.json`` beside the session's log: the
+        precision the session reached and, unless that meets every target, the test that would
+        (``[test] plan = "follow-up.json"`` runs it).
     """
 
     diagnose: bool = False
+    plan_follow_up: bool = False
 
 
 @dataclass(frozen=True)

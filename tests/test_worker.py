@@ -514,7 +514,9 @@ def test_replay_alone_gives_the_live_result(
     daemon = FakeDaemon(pipeline, session.events, page=40)
     daemon.go.set()
     assert daemon.done.wait(10)
-    options = WorkerOptions(settings=BUDGET, profile_points=0, diagnose=True)  # beside the log
+    options = WorkerOptions(
+        settings=BUDGET, profile_points=0, diagnose=True, plan_follow_up=True
+    )  # beside the log
     try:
         status, messages, _ = _serve(pipeline, options)
     finally:
@@ -540,6 +542,18 @@ def test_replay_alone_gives_the_live_result(
     offline_diagnosis = json.loads(out.read_text())
     for key in ("adequate", "mismatch", "test", "hints"):
         assert written[key] == offline_diagnosis[key], key
+    # [worker] plan_follow_up: the session's identifying runs counted in, its validation held out
+    (plan,) = [d for t, d in messages if t == "plan"]
+    assert plan.pop("session") == "s1"
+    assert json.loads((folder / "follow-up.json").read_text()) == plan
+    validate(plan, "plan")
+    recorded = plan["recorded"]["runs"]
+    assert sorted(round(r["amplitude_nm"]) for r in recorded) == [5, 10]
+    assert plan["prior"]["c12"] == pytest.approx(result["parameters"]["c12"])
+    assert "validation amplitude" in plan["information"]["excluded"]["2"]
+    if plan["plan"] is not None:  # the follow-up adds to what the session reached
+        for name, value in plan["predicted_precision"].items():
+            assert value < plan["recorded"]["predicted_precision"][name], name
 
 
 def test_a_new_session_resets_the_worker(

@@ -87,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
         plot_path=args.plot,
         plot=not args.no_plot,
         diagnose=config.worker.diagnose,
+        plan_follow_up=config.worker.plan_follow_up,
+        safety=config.safety,
     )
     leave_a_core_to_the_bus()
     worker = Worker(config.pipeline, options)

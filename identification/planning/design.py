@@ -469,6 +469,25 @@ def recommend(
     return Recommendation(design, precision, unmet, excluded, tried, recorded)
 
 
+def run_designs(tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]) -> list[Design]:
+    """The given runs of measured tests (indices into each test's estimates), each as a design
+    of its own, its amplitude the level it belongs to
+    (:func:`dtid.identification.search.identify.amplitude_levels`)."""
+    levels = amplitude_levels(
+        t.estimates[i].run.amplitude_nm
+        for t, indices in zip(tests, runs, strict=True)
+        for i in indices
+    )
+    designs = []
+    for test, indices in zip(tests, runs, strict=True):
+        for i in indices:
+            run = test.estimates[i].run
+            level = min(levels, key=lambda a: abs(a - run.amplitude_nm))
+            low, high = sorted((run.f1_hz, run.f2_hz))
+            designs.append(Design((level,), (1,), run.duration_s, low, high, validation_nm=0.0))
+    return designs
+
+
 def recorded_designs(tests: Sequence[MeasuredTest]) -> tuple[list[Design], list[float]]:
     """The identifying runs of measured tests (the default choice:
     :func:`dtid.identification.search.identify.split_runs`), each as a design of its own, and
@@ -479,19 +498,7 @@ def recorded_designs(tests: Sequence[MeasuredTest]) -> tuple[list[Design], list[
         for t, runs in zip(tests, validating, strict=True)
         for i in runs
     )
-    levels = amplitude_levels(
-        t.estimates[i].run.amplitude_nm
-        for t, runs in zip(tests, identifying, strict=True)
-        for i in runs
-    )
-    designs = []
-    for test, runs in zip(tests, identifying, strict=True):
-        for i in runs:
-            run = test.estimates[i].run
-            level = min(levels, key=lambda a: abs(a - run.amplitude_nm))
-            low, high = sorted((run.f1_hz, run.f2_hz))
-            designs.append(Design((level,), (1,), run.duration_s, low, high, validation_nm=0.0))
-    return designs, held_out
+    return run_designs(tests, identifying), held_out
 
 
 def planning_prior(prior: DrivetrainParameters) -> tuple[DrivetrainParameters, list[str]]:

@@ -29,6 +29,7 @@ from scipy.linalg import toeplitz
 from scipy.ndimage import uniform_filter1d
 
 from dtid.acquisition.plan import TestPlan
+from dtid.errors import AnalysisError
 from dtid.identification.frf.runs import ChirpRun
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import from_simulation
@@ -184,7 +185,10 @@ def measure_information(
             f"seed {seed}", from_simulation(result), RESOLUTION_HZ, vehicle
         )
         if len(test.estimates) != len(amplitudes):
-            raise ValueError(f"the simulated test at the prior gave {len(test.estimates)} runs")
+            raise AnalysisError(
+                f"the test simulated at the prior gave {len(test.estimates)} usable runs for "
+                f"{len(amplitudes)} amplitudes; the prior cannot be planned for"
+            )
         runs = list(range(len(amplitudes)))
         drv = [e.drv_db for e in test.estimates]
         objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=seed)

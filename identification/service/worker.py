@@ -25,6 +25,10 @@ It binds its own PUB (``[pipeline] results``) and publishes, as two frames ``[to
 ``diagnosis``
     With ``[worker] diagnose = true``, after a validated result: ``session`` and the JSON
     document of ``dtid diagnose --json``; also written to ``diagnosis.json`` beside the log.
+``plan``
+    With ``[worker] plan_follow_up = true``, after the result: ``session`` and the JSON document
+    of ``dtid plan --prior identification.json --after LOG --json`` (the precision reached, the
+    follow-up test); also written to ``follow-up.json`` beside the log.
 
 The identification starts when the identification chirps are complete (and
 :data:`dtid.identification.pipeline.HOLD_OUT_S` of data past them arrived), in a thread, while the
@@ -48,7 +52,7 @@ from urllib.parse import urlsplit
 
 import zmq
 
-from dtid.acquisition.config import PipelineConfig
+from dtid.acquisition.config import PipelineConfig, SafetyConfig
 from dtid.acquisition.ipc import private_folder
 from dtid.acquisition.security import Security
 from dtid.acquisition.server import bind
@@ -57,9 +61,11 @@ from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.pipeline import IdentificationReport, identify_runs
-from dtid.identification.search.identify import SearchSettings
+from dtid.identification.search.identify import SearchSettings, amplitude_levels
 from dtid.identification.service.live import EventLog, LiveSession
+from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.simulate import SimulationOptions
 from dtid.simulator.vehicle_data import VehicleData
 
 logger = logging.getLogger(__name__)
@@ -78,6 +84,8 @@ POLL_MS = 100
 """Longest wait for a message before the loop looks at its sessions again, ms."""
 DRAIN = 2000
 """Most messages taken from the stream before the sessions are advanced."""
+FOLLOW_UP_FILE = "follow-up.json"
+"""The follow-up test's plan beside the session's log (``[worker] plan_follow_up``)."""
 
 
 def leave_a_core_to_the_bus() -> int:
@@ -142,6 +150,10 @@ class WorkerOptions:
         Welch resolution of the FRFs.
     diagnose
         After the validation, diagnose the identified model (``[worker] diagnose``).
+    plan_follow_up
+        After the result, plan the follow-up test (``[worker] plan_follow_up``).
+    safety
+        The daemon's safety envelope, which caps the follow-up's amplitude and speed excursion.
     """
 
     settings: SearchSettings = field(default_factory=SearchSettings)
@@ -153,6 +165,8 @@ class WorkerOptions:
     plot: bool = True
     resolution_hz: float = DEFAULT_RESOLUTION_HZ
     diagnose: bool = False
+    plan_follow_up: bool = False
+    safety: SafetyConfig = field(default_factory=SafetyConfig)
 
 
 @dataclass
@@ -549,6 +563,8 @@ class Worker:
             files = self._diagnose(session, report, folder)
             written += files
             diagnosis_path = Path(files[0]) if files else None
+        if self.options.plan_follow_up:
+            written += self._plan(session, report, folder)
         written += self._report(session, live, diagnosis_path)
         self._progress(session, stage, files=written)
 
@@ -598,6 +614,56 @@ class Worker:
             self._progress(session, "error", message=str(error))
             return []
         return written
+
+    def _plan(self, session: _Session, report: IdentificationReport, folder: Path) -> list[str]:
+        """Plan the follow-up test, publish and write it; the files written."""
+        from dtid.identification.planning.design import (
+            DEFAULT_MAX_TIME_S,
+            DEFAULT_TARGETS_PERCENT,
+            plan_document,
+            plan_test,
+            run_designs,
+        )
+        from dtid.jsonfile import write_json
+
+        fit = report.fit
+        assert fit is not None
+        validation = report.validation
+        held_out = amplitude_levels(
+            t.estimates[i].run.amplitude_nm
+            for t, runs in (
+                zip(validation.tests, validation.runs, strict=True) if validation else ()
+            )
+            for i in runs
+        )
+        idle = sum(t.setpoint_rpm for t in fit.tests) / len(fit.tests)
+        try:
+            info, recommendation = plan_test(
+                report.identification.parameters,
+                DEFAULT_TARGETS_PERCENT,
+                self.options.safety,
+                validation_nm=0.0,
+                options=SimulationOptions(controller=IdleController(setpoint_rpm=idle)),
+                recorded=run_designs(fit.tests, fit.runs),
+                held_out_nm=held_out,
+            )
+        except DtidError as error:
+            self._progress(session, "error", message=f"the follow-up plan: {error}")
+            return []
+        limits = {
+            "max_amplitude_nm": self.options.safety.max_amplitude_nm,
+            "max_time_s": DEFAULT_MAX_TIME_S,
+            "speed_window_rpm": self.options.safety.speed_window_rpm,
+        }
+        document = plan_document(info, recommendation, DEFAULT_TARGETS_PERCENT, limits)
+        self._publish("plan", {"session": session.id, **document})
+        path = folder / FOLLOW_UP_FILE
+        try:
+            write_json(path, document)
+        except DtidError as error:
+            self._progress(session, "error", message=str(error))
+            return []
+        return [str(path)]
 
     def _fail(self, session: _Session, message: str) -> None:
         logger.error("session %s: %s", session.id, message)
