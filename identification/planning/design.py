@@ -335,6 +335,8 @@ class Recommendation:
         Candidate amplitudes left out, each with the reason.
     designs_tried
         Designs evaluated.
+    recorded
+        The runs recorded before, counted in (a follow-up's; empty otherwise).
     """
 
     design: Design | None
@@ -455,8 +457,9 @@ def recommend(
     if closest is None:
         shortest = Design((1.0, 2.0), (1, 1), min(DURATIONS_S), 1.0, 15.0, validation_nm)
         raise ConfigError(
-            f"no test fits in --max-time {max_time_s:g} s: the shortest (two "
-            f"{min(DURATIONS_S):g} s chirps and the validation chirp) lasts "
+            f"no test fits in --max-time {max_time_s:g} s: the shortest (one "
+            f"{min(DURATIONS_S):g} s chirp per amplitude"
+            f"{', and the validation chirp' if validation_nm else ''}) lasts "
             f"{shortest.test_time_s:g} s"
         )
     design = best[1] if best is not None else closest[1]
