@@ -196,7 +196,8 @@ def main() -> None:
     rows = {}
     print(
         f"{'':>6} {'target':>7} {'prior':>7} {'truth':>7} {'lin rms':>8} {'search rms':>10}"
-        f" {'worst':>7}   (% at {SIGMAS:g} sigma; errors: rms and worst |error| x {SIGMAS:g})"
+        f" {'worst':>7}   (%: targets and predictions at {SIGMAS:g} sigma, rms errors times "
+        f"{SIGMAS:g}; worst: the largest |error| of the searches)"
     )
     for name in PRECISION_NAMES:
         lin = np.array([e[name] for e in linearised])
