@@ -174,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
         options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
         recorded=recorded,
         held_out_nm=held_out,
+        vehicle=vehicle_data(args) if args.vehicle else None,
     )
     limits = {
         "max_amplitude_nm": cap,

@@ -45,6 +45,7 @@ from dtid.identification.search.parameterization import PASSENGER_CAR_RANGES, TH
 from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.parameters import UNITS, DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions
+from dtid.simulator.vehicle_data import VehicleData
 
 PRECISION_NAMES: tuple[str, ...] = ("J1", "J2", "J3", *THETA_NAMES)
 """Parameters whose precision is predicted: the inertias and setup-4's ten."""
@@ -533,6 +534,7 @@ def plan_test(
     options: SimulationOptions | None = None,
     recorded: Sequence[Design] = (),
     held_out_nm: Sequence[float] = (),
+    vehicle: VehicleData | None = None,
 ) -> tuple[PlanInformation, Recommendation]:
     """Measure the candidate amplitudes' information at a prior and recommend a test.
 
@@ -540,15 +542,22 @@ def plan_test(
     the validation amplitude; the speed window is ``safety``'s too (see :func:`recommend`).
     ``options`` is the simulated vehicle (its idle speed, engine, noise; the reference's by
     default); ``recorded`` the identifying runs recorded so far (a follow-up test) and
-    ``held_out_nm`` the amplitudes of their tests' validation runs.
+    ``held_out_nm`` the amplitudes of their tests' validation runs; ``vehicle`` the engine and
+    speed sensor the user gave (``--vehicle``), which then both the simulated vehicle and the
+    model side have.
     """
+    options = options or SimulationOptions()
+    if vehicle is not None:
+        options = dataclasses.replace(
+            options, engine=vehicle.engine, speed_average=vehicle.speed_average
+        )
     cap = safety.max_amplitude_nm
     amplitudes = [a for a in CANDIDATE_AMPLITUDES_NM if a <= cap * (1 + 1e-9)]
     for extra in [validation_nm, *(a for d in recorded for a in d.amplitudes_nm)]:
         if extra and all(abs(a - extra) > AMPLITUDE_MATCH * extra for a in amplitudes):
             amplitudes.append(extra)
     prior, notes = planning_prior(prior)
-    info = measure_information(prior, amplitudes, options=options, seeds=seeds)
+    info = measure_information(prior, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
     info = dataclasses.replace(info, notes=tuple(notes))
     recommendation = recommend(
         info,

@@ -646,6 +646,7 @@ class Worker:
                 options=SimulationOptions(controller=IdleController(setpoint_rpm=idle)),
                 recorded=run_designs(fit.tests, fit.runs),
                 held_out_nm=held_out,
+                vehicle=self.options.vehicle if self.options.vehicle.given else None,
             )
         except DtidError as error:
             self._progress(session, "error", message=f"the follow-up plan: {error}")
