@@ -162,6 +162,40 @@ class WorkerConfig:
 
 
 @dataclass(frozen=True)
+class CampaignConfig:
+    """The adaptive test (``[test] adaptive``, ``max_time_s``, ``targets``, ``replan_wait_s``).
+
+    With ``adaptive = true`` ``dtid acquire`` runs the ``[test]`` plan as the first round of a
+    campaign (:mod:`dtid.acquisition.campaign`); after each round the worker identifies every
+    round so far together and plans the next at what it identified, and the daemon runs it,
+    until the recorded runs meet the targets or the next round would exceed the time budget.
+
+    Attributes
+    ----------
+    adaptive
+        Run rounds until the targets are met (True) or one test only (False, the default).
+    max_time_s
+        Budget of the whole campaign's test time (bus time, every round's settle, chirps and
+        pauses), s.
+    targets
+        Precision targets, % at 2 sigma, by parameter name, over the defaults of ``dtid plan``
+        (0 drops one); empty: the defaults.
+    replan_wait_s
+        Longest wall time the daemon waits, engine at idle and no test torque, for the worker's
+        plan of the next round, s.
+    """
+
+    adaptive: bool = False
+    max_time_s: float = 1800.0
+    targets: dict[str, float] = field(default_factory=dict)
+    replan_wait_s: float = 3600.0
+
+
+CAMPAIGN_KEYS = ("adaptive", "max_time_s", "targets", "replan_wait_s")
+"""Keys of ``[test]`` that configure the campaign rather than one test's plan."""
+
+
+@dataclass(frozen=True)
 class AcquisitionConfig:
     """The whole configuration file."""
 
@@ -172,6 +206,7 @@ class AcquisitionConfig:
     output: OutputConfig = field(default_factory=OutputConfig)
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     worker: WorkerConfig = field(default_factory=WorkerConfig)
+    campaign: CampaignConfig = field(default_factory=CampaignConfig)
 
     def __post_init__(self) -> None:
         _check(self)
@@ -239,6 +274,13 @@ def _check(config: AcquisitionConfig) -> None:
             value = getattr(getattr(config, section), name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"[{section}] {name} must be > 0, got {value}")
+    for name in ("max_time_s", "replan_wait_s"):
+        value = getattr(config.campaign, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"[test] {name} must be > 0, got {value}")
+    for name, percent in config.campaign.targets.items():
+        if not isinstance(percent, int | float) or isinstance(percent, bool) or percent < 0:
+            raise ConfigError(f"[test] targets: {name} must be a percentage >= 0, got {percent!r}")
     formats = [suffix[1:] for suffix in SUFFIXES]
     if config.output.log_format not in formats:
         raise ConfigError(
@@ -312,7 +354,16 @@ def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
         raise ConfigError(f"{path} is not valid TOML: {error}") from None
     sections = {}
     if isinstance(document.get("test"), dict):
-        document["test"] = _test_section(path, dict(document["test"]))
+        test = dict(document["test"])
+        campaign = {key: test.pop(key) for key in CAMPAIGN_KEYS if key in test}
+        defaults = CampaignConfig()
+        sections["campaign"] = CampaignConfig(
+            **{
+                key: _convert(f"{path}: [test] {key}", getattr(defaults, key), value, path.parent)
+                for key, value in campaign.items()
+            }
+        )
+        document["test"] = _test_section(path, test)
     for section, values in document.items():
         if section not in _SECTIONS:
             raise ConfigError(f"{path}: unknown section [{section}]; known: {', '.join(_SECTIONS)}")
@@ -324,6 +375,8 @@ def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
         converted = {}
         for key, value in values.items():
             if key not in known:
+                if section == "test":
+                    known |= set(CAMPAIGN_KEYS)
                 raise ConfigError(
                     f"{path}: unknown key '{key}' in [{section}]; known: {', '.join(sorted(known))}"
                 )

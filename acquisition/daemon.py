@@ -36,7 +36,7 @@ import sys
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -117,6 +117,9 @@ class Daemon:
         Wall time to wait for the vehicle's first speed frame before aborting, s.
     report
         Called with one line of text per step worth telling an operator (log path, phases, end).
+    campaign
+        The round of an adaptive campaign this test is (:mod:`dtid.acquisition.campaign`), told
+        to the worker in the ``session`` event; None for a test of its own.
     """
 
     def __init__(
@@ -125,11 +128,13 @@ class Daemon:
         linger_s: float = DEFAULT_LINGER_S,
         wait_s: float = DEFAULT_WAIT_S,
         report: Callable[[str], None] = lambda line: None,
+        campaign: Mapping[str, Any] | None = None,
     ) -> None:
         self.config = config
         self.linger_s = linger_s
         self.wait_s = wait_s
         self.report = report
+        self.campaign = campaign
         self._signals = 0
         self._status: str | None = None
         self._reason: str | None = None
@@ -219,11 +224,14 @@ class Daemon:
         config = self.config
         plan = config.test.as_dict()
         paths = asdict(config.vehicle_interface)
-        return {
+        fields = {
             "plan": plan,
             "interface": {key: None if p is None else str(p) for key, p in paths.items()},
             "time_factor": config.bus.time_factor,
         }
+        if self.campaign is not None:
+            fields["campaign"] = dict(self.campaign)
+        return fields
 
     @contextlib.contextmanager
     def _signal_handlers(self) -> Iterator[None]:

@@ -1,4 +1,4 @@
-"""The folder of the local (ipc) ZeroMQ endpoints, made private and checked before use.
+"""The pipeline's ZeroMQ endpoints: the local (ipc) folder made private and checked before use.
 
 Whoever can create the socket files of the pipeline can feed the worker or read the stream. A
 predictable folder (``/tmp/dtid-UID`` without ``XDG_RUNTIME_DIR``) that another local user made
@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import stat
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from dtid.errors import ConfigError
 
@@ -52,3 +53,25 @@ def private_folder(path: Path) -> Path:
             "XDG_RUNTIME_DIR)"
         )
     return path
+
+
+def endpoint(address: str, bind: bool = False) -> str:
+    """A ZeroMQ endpoint of the configuration, ready to use.
+
+    ``ipc://`` endpoints get their folder made (when binding); a ``tcp://`` endpoint without a
+    host (``tcp://:5555``) means loopback, 127.0.0.1, and so does a wildcard host (``*``,
+    ``0.0.0.0``) to connect to; other transports are refused.
+    """
+    parts = urlsplit(address)
+    if parts.scheme == "ipc":
+        if bind:
+            private_folder(Path(address[len("ipc://") :]).parent)
+        return address
+    if parts.scheme == "tcp":
+        host, sep, port = parts.netloc.rpartition(":")
+        if not sep or not port.isdigit():
+            raise ConfigError(f"endpoint {address!r}: expected tcp://HOST:PORT")
+        if not host or (not bind and host in ("*", "0.0.0.0")):
+            host = "127.0.0.1"
+        return f"tcp://{host}:{port}"
+    raise ConfigError(f"endpoint {address!r}: expected ipc://PATH or tcp://HOST:PORT")

@@ -197,12 +197,24 @@ def plan_from_file(path: str | Path, request_period_s: float = 0.01) -> TestPlan
         raise ConfigError(f"cannot read the plan file {path}: {error.strerror}") from None
     except json.JSONDecodeError as error:
         raise ConfigError(f"plan file {path} is not JSON: {error}") from None
+    return plan_from_document(document, f"plan file {path}", request_period_s)
+
+
+def plan_from_document(document: object, where: str, request_period_s: float = 0.01) -> TestPlan:
+    """The test plan of a ``dtid plan --json`` document (its ``plan`` entry); ``where`` names
+    the document in messages.
+
+    Raises
+    ------
+    ConfigError
+        If the document has no ``plan`` entry, or it lacks a key or holds a bad value.
+    """
     entry = document.get("plan") if isinstance(document, dict) else None
     if not isinstance(entry, dict):
-        raise ConfigError(f"plan file {path} has no 'plan' entry; write one with dtid plan --json")
+        raise ConfigError(f"{where} has no 'plan' entry; write one with dtid plan --json")
     missing = [key for key in PLAN_FILE_KEYS if key not in entry]
     if missing:
-        raise ConfigError(f"plan file {path}: its plan has no {missing[0]!r}")
+        raise ConfigError(f"{where}: its plan has no {missing[0]!r}")
     try:
         numbers = {
             key: float(entry[key])
@@ -210,14 +222,9 @@ def plan_from_file(path: str | Path, request_period_s: float = 0.01) -> TestPlan
             if key in entry
         }
         amplitudes = in_rounds([float(a) for a in entry["amplitudes_nm"]], entry["repeats"])
-    except (TypeError, ValueError) as error:
-        raise ConfigError(f"plan file {path}: {error}") from None
-    except ConfigError as error:
-        raise ConfigError(f"plan file {path}: {error}") from None
-    try:
         return TestPlan(amplitudes_nm=amplitudes, request_period_s=request_period_s, **numbers)
-    except ConfigError as error:
-        raise ConfigError(f"plan file {path}: {error}") from None
+    except (TypeError, ValueError, ConfigError) as error:
+        raise ConfigError(f"{where}: {error}") from None
 
 
 @numba.njit(cache=True)

@@ -556,6 +556,46 @@ def test_replay_alone_gives_the_live_result(
             assert value < plan["recorded"]["predicted_precision"][name], name
 
 
+def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_budget(
+    session: SimulatedSession, ipc_dir: Path
+) -> None:
+    """A round of an adaptive campaign (dtid.acquisition.campaign): the worker identifies it
+    together with the earlier round's log, validates on the earlier round's validation chirp
+    (this round has none), and publishes the next round's plan within the budget left."""
+    earlier = ipc_dir / "round1.blf"
+    shutil.copyfile(session.log_path, earlier)
+    events = [{**e, "session": "s2"} for e in session.events]
+    events[0]["plan"] = {**events[0]["plan"], "validation_nm": 0.0}
+    events[0]["campaign"] = {
+        "id": "c",
+        "round": 2,
+        "logs": [str(earlier)],
+        "identify_nm": [5.0, 10.0],
+        "spent_s": 72.0,
+        "test_time_s": 72.0,
+        "max_time_s": 1000.0,
+        "targets": {"eps23": 10.0},
+    }
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, events)
+    daemon.go.set()
+    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json")
+    try:
+        status, messages, _ = _serve(pipeline, options, timeout_s=120.0)
+    finally:
+        daemon.close()
+    assert status == 0
+    (result,) = [d for t, d in messages if t == "result"]
+    assert sorted(result["idle_loop"]) == sorted([str(earlier), str(session.log_path)])
+    assert list(result["nrmse"]["validation"]) == [f"{earlier} @ 2 N*m"]  # its own chirp
+    (plan,) = [d for t, d in messages if t == "plan"]
+    assert plan["session"] == "s2" and plan["limits"]["max_time_s"] == 1000.0 - 144.0
+    assert plan["targets_percent"]["eps23"] == 10.0
+    assert sorted(round(r["amplitude_nm"]) for r in plan["recorded"]["runs"]) == [5, 5, 10, 10]
+    if plan["plan"] is not None:
+        assert plan["test_time_s"] <= 1000.0 - 144.0
+
+
 def test_a_new_session_resets_the_worker(
     session: SimulatedSession, ipc_dir: Path, offline: dict
 ) -> None:

@@ -6,6 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
+from dtid.acquisition.campaign import Campaign
 from dtid.acquisition.config import load_config
 from dtid.acquisition.daemon import DEFAULT_LINGER_S, DEFAULT_WAIT_S, Daemon
 from dtid.cli.commands.common import positive_float
@@ -31,7 +32,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "settle, chirp at each amplitude, validate; record every frame to a new session folder "
         "and publish the decoded samples on ZeroMQ. Aborts with a zero request when the speed "
         "leaves its window, the vehicle stops answering, another node sends on the tool's IDs, "
-        "or on SIGINT/SIGTERM. Exit status 0: completed; 3: aborted; 2: configuration error.",
+        "or on SIGINT/SIGTERM. With [test] adaptive = true, runs rounds: after each the worker "
+        "plans the next at what it identified, until the targets are met or [test] max_time_s "
+        "is spent (campaign.json says why it stopped). Exit status 0: completed; 3: aborted; "
+        "2: configuration error.",
     )
     parser.add_argument("--config", type=Path, help="configuration file (TOML; default: built-in)")
     parser.add_argument("--output", type=Path, help="folder of the session folders ([output])")
@@ -62,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
         config = config.with_changes("bus", **bus)
     if args.output is not None:
         config = config.with_changes("output", directory=args.output)
+    if config.campaign.adaptive:
+        campaign = Campaign(config, linger_s=args.linger, wait_s=args.wait, report=_print)
+        return campaign.run().exit_status
     daemon = Daemon(config, linger_s=args.linger, wait_s=args.wait, report=_print)
     return daemon.run().exit_status
 

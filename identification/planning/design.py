@@ -572,6 +572,12 @@ def plan_test(
     return info, recommendation
 
 
+def shortest_test_s() -> float:
+    """The shortest test the search can recommend: one chirp of the shortest duration at each of
+    two amplitudes, no validation chirp, s."""
+    return Design((1.0, 2.0), (1, 1), min(DURATIONS_S), 1.0, 15.0, validation_nm=0.0).test_time_s
+
+
 def _chirp_time(design: Design) -> float:
     return sum(design.repeats) * design.duration_s
 

@@ -158,6 +158,21 @@ class LiveSession:
         return tuple(float(a) for a in self.start["plan"]["amplitudes_nm"])
 
     @property
+    def campaign(self) -> Mapping[str, Any] | None:
+        """The ``campaign`` entry of an adaptive campaign's round
+        (:func:`dtid.acquisition.campaign.round_fields`), None for a test of its own."""
+        campaign = self.start.get("campaign")
+        return campaign if isinstance(campaign, Mapping) else None
+
+    @property
+    def identify_nm(self) -> tuple[float, ...]:
+        """The amplitudes that identify, N*m: the plan's, or in a campaign every round's."""
+        campaign = self.campaign
+        if campaign is not None and campaign.get("identify_nm"):
+            return tuple(float(a) for a in campaign["identify_nm"])
+        return self.amplitudes_nm
+
+    @property
     def validation_index(self) -> int | None:
         """Index of the validation chirp in the plan, or None without one."""
         has = float(self.start["plan"].get("validation_nm") or 0.0) > 0
@@ -274,16 +289,19 @@ class LiveSession:
         last = max(self.chirps[i].end_s for i in range(len(self.amplitudes_nm)))
         return self.reaches(last + HOLD_OUT_S)
 
-    def identification_selection(self, data: TestData) -> RunSelection:
+    def identification_selection(
+        self, data: TestData, earlier: Sequence[MeasuredTest] = ()
+    ) -> RunSelection:
         """The identification runs, cut as :func:`dtid.identification.pipeline.identification_runs`
-        cuts the whole log (the data past the cut, a validation chirp begun, are not used)."""
+        cuts the whole log (the data past the cut, a validation chirp begun, are not used);
+        with the ``earlier`` rounds' tests of a campaign before this one's."""
         runs = find_runs(data.test_torque)
         matched = [_matching_run(runs, self.chirps[i]) for i in range(len(self.amplitudes_nm))]
         ends = [r.end_s for r in matched if r is not None]
         if ends:
             data = truncated(data, cut_time(data.test_torque, max(ends)))
         test = MeasuredTest.from_data(self.name, data, self.resolution_hz, self.vehicle)
-        return identification_runs([test], self.amplitudes_nm, self.resolution_hz)
+        return identification_runs([*earlier, test], self.identify_nm, self.resolution_hz)
 
     def validation_due(self) -> bool:
         """True when the validation chirp is complete and the data past it arrived."""

@@ -32,6 +32,7 @@ from typing import Any, TextIO
 import zmq
 
 from dtid.acquisition.config import PipelineConfig
+from dtid.acquisition.ipc import endpoint
 from dtid.acquisition.plan import Chirp, TestPlan
 from dtid.acquisition.security import Security
 from dtid.acquisition.stream import ABORT_REASONS, KINDS, REPLAY_PAGE
@@ -40,7 +41,6 @@ from dtid.errors import AnalysisError, ConfigError, DtidError
 from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import ChirpRun
 from dtid.identification.service.live import EventLog, LiveSession
-from dtid.identification.service.worker import endpoint
 
 PLOT_ROWS = 9
 """Rows of the |G_DRV| character plot."""

@@ -48,25 +48,26 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
-from urllib.parse import urlsplit
 
 import zmq
 
 from dtid.acquisition.config import PipelineConfig, SafetyConfig
-from dtid.acquisition.ipc import private_folder
+from dtid.acquisition.ipc import endpoint
 from dtid.acquisition.security import Security
 from dtid.acquisition.server import bind
 from dtid.acquisition.stream import KINDS, REPLAY_PAGE
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
-from dtid.identification.pipeline import IdentificationReport, identify_runs
+from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
 from dtid.identification.search.identify import SearchSettings, amplitude_levels
 from dtid.identification.service.live import EventLog, LiveSession
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions
 from dtid.simulator.vehicle_data import VehicleData
+from dtid.workflow import measured_tests
 
 logger = logging.getLogger(__name__)
 
@@ -102,28 +103,6 @@ def leave_a_core_to_the_bus() -> int:
     if "NUMBA_NUM_THREADS" not in os.environ:
         numba.set_num_threads(max(1, numba.config.NUMBA_NUM_THREADS - 1))
     return numba.get_num_threads()
-
-
-def endpoint(address: str, bind: bool = False) -> str:
-    """A ZeroMQ endpoint of the configuration, ready to use.
-
-    ``ipc://`` endpoints get their folder made (when binding); a ``tcp://`` endpoint without a
-    host (``tcp://:5555``) means loopback, 127.0.0.1, and so does a wildcard host (``*``,
-    ``0.0.0.0``) to connect to; other transports are refused.
-    """
-    parts = urlsplit(address)
-    if parts.scheme == "ipc":
-        if bind:
-            private_folder(Path(address[len("ipc://") :]).parent)
-        return address
-    if parts.scheme == "tcp":
-        host, sep, port = parts.netloc.rpartition(":")
-        if not sep or not port.isdigit():
-            raise ConfigError(f"endpoint {address!r}: expected tcp://HOST:PORT")
-        if not host or (not bind and host in ("*", "0.0.0.0")):
-            host = "127.0.0.1"
-        return f"tcp://{host}:{port}"
-    raise ConfigError(f"endpoint {address!r}: expected ipc://PATH or tcp://HOST:PORT")
 
 
 @dataclass(frozen=True)
@@ -188,6 +167,8 @@ class _Session:
     status: str = ""
     report_inputs: tuple[Path, Path | None] | None = None
     """The identification and diagnosis JSONs the session's report was made of."""
+    earlier: list[MeasuredTest] = field(default_factory=list)
+    """A campaign round's earlier rounds, read from their logs (identified together with it)."""
 
 
 class Worker:
@@ -488,7 +469,7 @@ class Worker:
                 data = live.test_data()
         if session.report is not None and session.result is None:
             if live.validation_index is None:
-                self._conclude(session, live, session.report)
+                self._conclude(session, live, self._validated_by_earlier(session, live))
             elif validation_due:
                 report = session.report.validated(live.validation_selection(data))
                 self._conclude(session, live, report)
@@ -510,8 +491,8 @@ class Worker:
                 self._finish(session, "error")
 
     def _start_identification(self, session: _Session, live: LiveSession, data: Any) -> None:
-        selection = live.identification_selection(data)
         options = self.options
+        logs = (live.campaign or {}).get("logs") or []
 
         def progress(stage: str, step: int, steps: int, best: float) -> None:
             # the search's thread only queues: the loop composes the message from the session
@@ -520,6 +501,14 @@ class Worker:
 
         def run() -> None:
             try:
+                if logs:  # read in this thread: a campaign's earlier rounds take a while
+                    session.earlier = measured_tests(
+                        logs,
+                        live.interface,
+                        vehicle=options.vehicle,
+                        resolution_hz=live.resolution_hz,
+                    )
+                selection = live.identification_selection(data, session.earlier)
                 report = identify_runs(
                     selection,
                     self.prior,
@@ -535,6 +524,16 @@ class Worker:
         session.thread = threading.Thread(target=run, name=f"identify-{session.id}", daemon=True)
         self._progress(session, "identifying")
         session.thread.start()
+
+    @staticmethod
+    def _validated_by_earlier(session: _Session, live: LiveSession) -> IdentificationReport:
+        """The report, validated on the earlier campaign rounds' validation runs if they have
+        any (a round planned by the worker has none of its own)."""
+        assert session.report is not None
+        if not session.earlier:
+            return session.report
+        selection = validation_runs(session.earlier, live.identify_nm, live.resolution_hz)
+        return session.report.validated(selection) if selection.tests else session.report
 
     def _conclude(self, session: _Session, live: LiveSession, report: IdentificationReport) -> None:
         """Publish the result, write it and plot it."""
@@ -563,8 +562,8 @@ class Worker:
             files = self._diagnose(session, report, folder)
             written += files
             diagnosis_path = Path(files[0]) if files else None
-        if self.options.plan_follow_up:
-            written += self._plan(session, report, folder)
+        if self.options.plan_follow_up or live.campaign is not None:
+            written += self._plan(session, report, folder, live.campaign)
         written += self._report(session, live, diagnosis_path)
         self._progress(session, stage, files=written)
 
@@ -615,14 +614,27 @@ class Worker:
             return []
         return written
 
-    def _plan(self, session: _Session, report: IdentificationReport, folder: Path) -> list[str]:
-        """Plan the follow-up test, publish and write it; the files written."""
+    def _plan(
+        self,
+        session: _Session,
+        report: IdentificationReport,
+        folder: Path,
+        campaign: Mapping[str, Any] | None,
+    ) -> list[str]:
+        """Plan the follow-up test, publish and write it; the files written.
+
+        In a campaign (:mod:`dtid.acquisition.campaign`) the targets are the campaign's and the
+        next round must fit in its budget left (at least the shortest test is planned, so the
+        campaign sees how long the next round would be); a failure is published as a plan
+        without a test and with the ``error``, so the campaign stops saying why.
+        """
         from dtid.identification.planning.design import (
             DEFAULT_MAX_TIME_S,
-            DEFAULT_TARGETS_PERCENT,
+            parse_targets,
             plan_document,
             plan_test,
             run_designs,
+            shortest_test_s,
         )
         from dtid.jsonfile import write_json
 
@@ -637,26 +649,44 @@ class Worker:
             for i in runs
         )
         idle = sum(t.setpoint_rpm for t in fit.tests) / len(fit.tests)
+        max_time_s = DEFAULT_MAX_TIME_S
         try:
+            targets = parse_targets(
+                [
+                    f"{name}={value}"
+                    for name, value in ((campaign or {}).get("targets") or {}).items()
+                ]
+            )
+            if campaign is not None:
+                left = float(campaign["max_time_s"]) - float(campaign["spent_s"])
+                left -= float(campaign["test_time_s"])  # this round's
+                max_time_s = max(left, shortest_test_s())
             info, recommendation = plan_test(
                 report.identification.parameters,
-                DEFAULT_TARGETS_PERCENT,
+                targets,
                 self.options.safety,
+                max_time_s=max_time_s,
                 validation_nm=0.0,
                 options=SimulationOptions(controller=IdleController(setpoint_rpm=idle)),
                 recorded=run_designs(fit.tests, fit.runs),
                 held_out_nm=held_out,
                 vehicle=self.options.vehicle if self.options.vehicle.given else None,
             )
-        except DtidError as error:
-            self._progress(session, "error", message=f"the follow-up plan: {error}")
+        except (DtidError, KeyError, TypeError, ValueError) as error:
+            message = f"the follow-up plan: {error}"
+            if campaign is not None:
+                self._publish(
+                    "plan",
+                    {"session": session.id, "plan": None, "meets_targets": False, "error": message},
+                )
+            self._progress(session, "error", message=message)
             return []
         limits = {
             "max_amplitude_nm": self.options.safety.max_amplitude_nm,
-            "max_time_s": DEFAULT_MAX_TIME_S,
+            "max_time_s": max_time_s,
             "speed_window_rpm": self.options.safety.speed_window_rpm,
         }
-        document = plan_document(info, recommendation, DEFAULT_TARGETS_PERCENT, limits)
+        document = plan_document(info, recommendation, targets, limits)
         self._publish("plan", {"session": session.id, **document})
         path = folder / FOLLOW_UP_FILE
         try:
