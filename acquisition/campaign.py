@@ -54,7 +54,6 @@ STOP_REASONS = {
     "time_budget": "the next round would exceed the test-time budget left",
     "aborted": "a round was aborted",
     "no_plan": "the worker gave no plan for the next round",
-    "single": "not adaptive: one test",
 }
 """Why a campaign stopped, by key of ``campaign.json``'s ``stopped``."""
 POLL_MS = 200
@@ -206,21 +205,22 @@ class Campaign:
         Raises
         ------
         ConfigError, DbcError, RecordingError
-            As :meth:`dtid.acquisition.daemon.Daemon.run`, before the first round runs; or if
-            ``[test] targets`` names an unknown parameter.
+            As :meth:`dtid.acquisition.daemon.Daemon.run`, before the first round runs. (The
+            ``[test] targets`` names are checked by ``dtid acquire`` before; the worker refuses
+            an unknown one with its first plan.)
         """
         config = self.config
-        _check_targets(config.campaign.targets)
         folder = new_session_directory(Path(config.output.directory))
         campaign_id = folder.name
         self.report(
             f"adaptive campaign {campaign_id}: up to {config.campaign.max_time_s:g} s of test "
             f"time; record {folder / CAMPAIGN_FILE}"
         )
-        result = CampaignResult(folder, [], "aborted", STOP_REASONS["aborted"])
+        result = CampaignResult(folder, [], "aborted", "stopped before a round ended (an error)")
         context = zmq.Context()
         security = Security(config.pipeline.keys, context)
         results = context.socket(zmq.SUB)
+        results.setsockopt(zmq.RCVHWM, 0)  # read only between rounds: keep all that comes
         results.setsockopt(zmq.LINGER, 0)
         results.setsockopt(zmq.SUBSCRIBE, b"")
         try:
@@ -264,6 +264,7 @@ class Campaign:
                         "predicted_precision"
                     )
                     record["unmet"] = document.get("unmet")
+                    self.report(_reached(number, document))
                 spent = sum(r["test_time_s"] for r in result.rounds)
                 decision = next_round(document, config.campaign.max_time_s - spent, config)
                 if decision.plan is None:
@@ -297,14 +298,18 @@ class Campaign:
         )
 
 
-def _check_targets(targets: Mapping[str, float]) -> None:
-    """Refuse an unknown target name before anything runs on the bus."""
-    from dtid.identification.planning.design import parse_targets
-
-    try:
-        parse_targets([f"{name}={percent}" for name, percent in targets.items()])
-    except ConfigError as error:
-        raise ConfigError(f"[test] targets: {error}".replace("--target ", "")) from None
+def _reached(number: int, document: Mapping[str, Any]) -> str:
+    """One line: the precision the rounds so far reach on each targeted parameter."""
+    precision = (document.get("recorded") or {}).get("predicted_precision") or {}
+    targets = document.get("targets_percent") or {}
+    sigmas = float(document.get("sigmas") or 2.0)
+    parts = [
+        f"{name} {100 * sigmas * precision[name]:.1f}"
+        + ("" if 100 * sigmas * precision[name] <= target else f" (target {target:g})")
+        for name, target in targets.items()
+        if name in precision
+    ]
+    return f"after round {number}, % at {sigmas:g} sigma: " + ", ".join(parts)
 
 
 def _await_plan(socket: zmq.Socket, session: str, wait_s: float) -> dict[str, Any] | None:

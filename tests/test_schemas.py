@@ -35,6 +35,7 @@ def test_every_schema_file_is_tested() -> None:
         "diagnosis",
         "recording-metadata",
         "plan",  # validated in tests/test_plan.py (dtid plan's own fixture)
+        "campaign",  # validated in tests/test_campaign.py (the campaign on a virtual bus)
     }
 
 

@@ -10,6 +10,7 @@ from dtid.acquisition.campaign import Campaign
 from dtid.acquisition.config import load_config
 from dtid.acquisition.daemon import DEFAULT_LINGER_S, DEFAULT_WAIT_S, Daemon
 from dtid.cli.commands.common import positive_float
+from dtid.errors import ConfigError
 
 
 def non_negative_float(text: str) -> float:
@@ -67,10 +68,21 @@ def run(args: argparse.Namespace) -> int:
     if args.output is not None:
         config = config.with_changes("output", directory=args.output)
     if config.campaign.adaptive:
+        _check_targets(config.campaign.targets)
         campaign = Campaign(config, linger_s=args.linger, wait_s=args.wait, report=_print)
         return campaign.run().exit_status
     daemon = Daemon(config, linger_s=args.linger, wait_s=args.wait, report=_print)
     return daemon.run().exit_status
+
+
+def _check_targets(targets: dict[str, float]) -> None:
+    """Refuse an unknown ``[test] targets`` name before anything runs on the bus."""
+    from dtid.identification.planning.design import parse_targets
+
+    try:
+        parse_targets([f"{name}={percent}" for name, percent in targets.items()])
+    except ConfigError as error:
+        raise ConfigError(f"[test] targets: {error}".replace("--target ", "")) from None
 
 
 def _print(line: str) -> None:

@@ -14,7 +14,9 @@ It binds its own PUB (``[pipeline] results``) and publishes, as two frames ``[to
     received), ``chirps`` (the completed chirps' amplitudes), and per stage ``search`` (the
     identification's stage, step, steps and best objective), ``parameters``, ``seconds_after_chirp``
     (wall time from the end of the last identification chirp to the identified parameters),
-    ``message``.
+    ``message``; in a campaign's round after the first, after each identifying run, ``precision``
+    (% at 2 sigma per parameter: the runs so far, predicted with the last round's planning
+    information) and ``precision_runs`` (how many runs it counts).
 ``frf``
     One entry per chirp when its phase ends and its data have arrived, with the schema of a
     ``dtid frf`` run entry (``recording``, ``amplitude_nm``, ``frequency_hz``, ``drv_db``,
@@ -61,13 +63,13 @@ from dtid.errors import ConfigError, DtidError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
+from dtid.identification.samples.recording import load_recording
 from dtid.identification.search.identify import SearchSettings, amplitude_levels
 from dtid.identification.service.live import EventLog, LiveSession
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions
 from dtid.simulator.vehicle_data import VehicleData
-from dtid.workflow import measured_tests
 
 logger = logging.getLogger(__name__)
 
@@ -169,6 +171,8 @@ class _Session:
     """The identification and diagnosis JSONs the session's report was made of."""
     earlier: list[MeasuredTest] = field(default_factory=list)
     """A campaign round's earlier rounds, read from their logs (identified together with it)."""
+    precision: dict[str, float] | None = None
+    """Precision the campaign's runs reach so far, % at 2 sigma (after each identifying run)."""
 
 
 class Worker:
@@ -207,6 +211,9 @@ class Worker:
         self._pub: zmq.Socket | None = None
         self._poller = zmq.Poller()
         self._report_threads: list[threading.Thread] = []
+        self._campaigns: dict[str, tuple[Any, list[Any]]] = {}
+        """Per campaign id, the last round's planning information and its recorded runs (the
+        designs of :mod:`dtid.identification.planning.design`): what each new run adds."""
         self.listeners: list[Callable[[str, dict[str, Any]], None]] = []
         """Called with each message sent (for the command's terminal output and for tests)."""
 
@@ -445,6 +452,7 @@ class Worker:
                     self._publish("frf", entry)
                 else:
                     self._progress(session, "error", message=chirp.failed)
+            self._precision_so_far(session, live)
         if identification_due:
             self._start_identification(session, live, data)
         if session.thread is not None and not session.thread.is_alive() and session.outcome:
@@ -490,6 +498,41 @@ class Worker:
             elif session.identification_failed:
                 self._finish(session, "error")
 
+    def _precision_so_far(self, session: _Session, live: LiveSession) -> None:
+        """In a campaign round after the first: the precision the runs reach so far, the last
+        round's recorded runs and this round's identifying runs with an FRF, predicted with the
+        last round's planning information (linearised at what it identified); published as
+        ``precision`` in a ``progress`` message after each run."""
+        from dtid.identification.planning.design import AMPLITUDE_MATCH, SIGMAS, Design, predict
+
+        known = self._campaigns.get(str((live.campaign or {}).get("id")))
+        if known is None:
+            return
+        info, recorded = known
+        levels = live.identify_nm
+        runs = [
+            c.frf.run
+            for c in sorted(live.chirps.values(), key=lambda c: c.index)
+            if c.frf is not None
+            and any(abs(c.amplitude_nm - a) <= AMPLITUDE_MATCH * a for a in levels)
+        ]
+        new = [
+            Design(
+                (min(levels, key=lambda a: abs(a - run.amplitude_nm)),),
+                (1,),
+                run.duration_s,
+                *sorted((run.f1_hz, run.f2_hz)),
+                validation_nm=0.0,
+            )
+            for run in runs
+        ]
+        try:
+            precision = predict(info, None, [*recorded, *new])
+        except DtidError:
+            return
+        session.precision = {k: round(100 * SIGMAS * v, 2) for k, v in precision.items()}
+        self._progress(session, self._state(session), precision_runs=len(recorded) + len(new))
+
     def _start_identification(self, session: _Session, live: LiveSession, data: Any) -> None:
         options = self.options
         logs = (live.campaign or {}).get("logs") or []
@@ -502,12 +545,15 @@ class Worker:
         def run() -> None:
             try:
                 if logs:  # read in this thread: a campaign's earlier rounds take a while
-                    session.earlier = measured_tests(
-                        logs,
-                        live.interface,
-                        vehicle=options.vehicle,
-                        resolution_hz=live.resolution_hz,
-                    )
+                    session.earlier = [
+                        MeasuredTest.from_data(
+                            str(path),
+                            load_recording(path, live.interface).test_data(),
+                            live.resolution_hz,
+                            options.vehicle,
+                        )
+                        for path in logs
+                    ]
                 selection = live.identification_selection(data, session.earlier)
                 report = identify_runs(
                     selection,
@@ -687,6 +733,8 @@ class Worker:
             "speed_window_rpm": self.options.safety.speed_window_rpm,
         }
         document = plan_document(info, recommendation, targets, limits)
+        if campaign is not None:
+            self._campaigns[str(campaign.get("id"))] = (info, list(recommendation.recorded))
         self._publish("plan", {"session": session.id, **document})
         path = folder / FOLLOW_UP_FILE
         try:
@@ -734,6 +782,8 @@ class Worker:
             )
             if live.end is not None:
                 message["end"] = {k: live.end.get(k) for k in ("status", "reason")}
+        if session.precision is not None:
+            message["precision"] = session.precision
         message.update(extra)
         session.last_progress_wall = time.monotonic()
         self._publish("progress", message)
