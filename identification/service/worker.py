@@ -14,9 +14,9 @@ It binds its own PUB (``[pipeline] results``) and publishes, as two frames ``[to
     received), ``chirps`` (the completed chirps' amplitudes), and per stage ``search`` (the
     identification's stage, step, steps and best objective), ``parameters``, ``seconds_after_chirp``
     (wall time from the end of the last identification chirp to the identified parameters),
-    ``message``; in a campaign's round after the first, after each identifying run, ``precision``
-    (% at 2 sigma per parameter: the runs so far, predicted with the last round's planning
-    information) and ``precision_runs`` (how many runs it counts).
+    ``message``; in a campaign's round, after each identifying run, ``precision`` (% at 2 sigma
+    per parameter: the runs so far, predicted with the last round's planning information, in
+    round 1 with the information at the prior) and ``precision_runs`` (how many runs it counts).
 ``frf``
     One entry per chirp when its phase ends and its data have arrived, with the schema of a
     ``dtid frf`` run entry (``recording``, ``amplitude_nm``, ``frequency_hz``, ``drv_db``,
@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import zmq
 
 from dtid.acquisition.config import PipelineConfig, SafetyConfig
@@ -402,6 +403,7 @@ class Worker:
                 session.live = LiveSession(
                     event, interface, self.options.resolution_hz, self.options.vehicle
                 )
+                self._measure_at_prior(session.live)
                 self._progress(session, "acquiring")
                 continue
             before = session.live.phase
@@ -498,11 +500,37 @@ class Worker:
             elif session.identification_failed:
                 self._finish(session, "error")
 
+    def _measure_at_prior(self, live: LiveSession) -> None:
+        """A campaign's first round: measure the planning information at the prior in a thread
+        (as ``dtid plan`` does, about 10 s), so that the precision is said after each run from
+        the first run on; the rounds after it use their last round's plan's."""
+        campaign = live.campaign
+        if campaign is None or str(campaign.get("id")) in self._campaigns:
+            return
+        key, vehicle = str(campaign.get("id")), self.options.vehicle
+
+        def run() -> None:
+            from dtid.identification.planning.design import planning_prior
+            from dtid.identification.planning.information import measure_information
+
+            try:
+                prior, _ = planning_prior(self.prior)
+                info = measure_information(
+                    prior, live.identify_nm, vehicle=vehicle if vehicle.given else None
+                )
+            except Exception:  # the precision so far is a help; the round goes on without it
+                logger.exception("campaign %s: the information at the prior", key)
+                return
+            self._campaigns.setdefault(key, (info, []))
+
+        threading.Thread(target=run, name=f"information-{key}", daemon=True).start()
+
     def _precision_so_far(self, session: _Session, live: LiveSession) -> None:
-        """In a campaign round after the first: the precision the runs reach so far, the last
-        round's recorded runs and this round's identifying runs with an FRF, predicted with the
-        last round's planning information (linearised at what it identified); published as
-        ``precision`` in a ``progress`` message after each run."""
+        """In a campaign round: the precision the runs reach so far, the earlier rounds' recorded
+        runs and this round's identifying runs with an FRF, predicted with the last round's
+        planning information (linearised at what it identified; in round 1 at the prior);
+        published as ``precision`` in a ``progress`` message after each run (from the first
+        run at which the information matrix is regular: two amplitudes)."""
         from dtid.identification.planning.design import AMPLITUDE_MATCH, SIGMAS, Design, predict
 
         known = self._campaigns.get(str((live.campaign or {}).get("id")))
@@ -526,9 +554,14 @@ class Worker:
             )
             for run in runs
         ]
+        if not new:
+            return
         try:
-            precision = predict(info, None, [*recorded, *new])
-        except DtidError:
+            with np.errstate(all="ignore"):
+                precision = predict(info, None, [*recorded, *new])
+        except (DtidError, np.linalg.LinAlgError):
+            return  # one amplitude so far: a stiffness and its free play are not yet separable
+        if not all(np.isfinite(v) and v >= 0 for v in precision.values()):
             return
         session.precision = {k: round(100 * SIGMAS * v, 2) for k, v in precision.items()}
         self._progress(session, self._state(session), precision_runs=len(recorded) + len(new))
