@@ -13,7 +13,7 @@ torque. :func:`next_round` then decides, and the campaign
 * stops ``targets_met`` when the recorded runs meet every target;
 * stops ``time_budget`` when the next round is longer than the budget left;
 * stops ``aborted`` when a round aborted (no further round on a vehicle that left the safety
-  envelope or an operator stopped);
+  envelope or an operator stopped), or on SIGINT/SIGTERM while it waits for the worker;
 * stops ``no_plan`` when the worker sent no plan within ``[test] replan_wait_s``, reported an
   error, or planned a round the configuration refuses (above the amplitude cap);
 * else runs the plan as the next round.
@@ -25,11 +25,14 @@ every round, so a campaign cut short still says what ran.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
+import signal
+import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -254,11 +257,20 @@ class Campaign:
                     result.stopped = "aborted"
                     result.message = f"round {number} was aborted ({outcome.reason})"
                     break
+                result.message = f"waiting for the worker's plan after round {number}"
                 self._write(result)
                 self.report(f"round {number} done; waiting for the worker's plan of the next")
-                document = _await_plan(
-                    results, outcome.session_dir.name, config.campaign.replan_wait_s
-                )
+                try:
+                    with _signals_interrupt():
+                        document = _await_plan(
+                            results, outcome.session_dir.name, config.campaign.replan_wait_s
+                        )
+                except KeyboardInterrupt:
+                    result.message = (
+                        f"stopped by a signal while waiting for the worker's plan after round "
+                        f"{number} (completed)"
+                    )
+                    break
                 if document is not None:
                     record["precision"] = (document.get("recorded") or {}).get(
                         "predicted_precision"
@@ -310,6 +322,25 @@ def _reached(number: int, document: Mapping[str, Any]) -> str:
         if name in precision
     ]
     return f"after round {number}, % at {sigmas:g} sigma: " + ", ".join(parts)
+
+
+@contextlib.contextmanager
+def _signals_interrupt() -> Iterator[None]:
+    """SIGINT and SIGTERM raise KeyboardInterrupt meanwhile (main thread only; a round's own
+    handlers are the daemon's)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 def _await_plan(socket: zmq.Socket, session: str, wait_s: float) -> dict[str, Any] | None:

@@ -18,6 +18,7 @@ import pytest
 import zmq
 from json_schemas import validate
 
+import dtid.acquisition.campaign as campaign_module
 from dtid.acquisition.bus import open_bus
 from dtid.acquisition.campaign import CAMPAIGN_FILE, Campaign, next_round, round_fields
 from dtid.acquisition.config import (
@@ -122,6 +123,25 @@ def test_an_unknown_target_is_refused_before_the_bus_is_opened(
     assert main(["acquire", "--config", str(config)]) == 2
     assert "[test] targets: 'stiffness=5'" in capsys.readouterr().err
     assert not runs.exists()
+
+
+def test_a_signal_while_waiting_for_the_plan_stops_without_a_traceback(tmp_path: Path) -> None:
+    """SIGTERM (as systemd stops the service) while the daemon waits for the worker's plan:
+    the wait ends at once as an interrupt the campaign turns into its record."""
+    before = signal.getsignal(signal.SIGTERM)
+    context = zmq.Context()
+    socket = context.socket(zmq.SUB)
+    socket.connect(f"ipc://{tmp_path}/results")
+    timer = threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGTERM))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt), campaign_module._signals_interrupt():
+            campaign_module._await_plan(socket, "s", 30.0)
+    finally:
+        timer.join()
+        socket.close(linger=0)
+        context.term()
+    assert signal.getsignal(signal.SIGTERM) == before
 
 
 # --- rounds on a virtual bus --------------------------------------------------------------------
