@@ -29,10 +29,8 @@ import contextlib
 import json
 import logging
 import math
-import signal
-import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -40,7 +38,13 @@ from typing import Any
 import zmq
 
 from dtid.acquisition.config import AcquisitionConfig
-from dtid.acquisition.daemon import DEFAULT_LINGER_S, DEFAULT_WAIT_S, Daemon, DaemonResult
+from dtid.acquisition.daemon import (
+    DEFAULT_LINGER_S,
+    DEFAULT_WAIT_S,
+    Daemon,
+    DaemonResult,
+    on_stop_signals,
+)
 from dtid.acquisition.ipc import endpoint
 from dtid.acquisition.plan import TestPlan, plan_from_document
 from dtid.acquisition.recorder import new_session_directory
@@ -324,23 +328,14 @@ def _reached(number: int, document: Mapping[str, Any]) -> str:
     return f"after round {number}, % at {sigmas:g} sigma: " + ", ".join(parts)
 
 
-@contextlib.contextmanager
-def _signals_interrupt() -> Iterator[None]:
+def _signals_interrupt() -> contextlib.AbstractContextManager[None]:
     """SIGINT and SIGTERM raise KeyboardInterrupt meanwhile (main thread only; a round's own
     handlers are the daemon's)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
 
     def handler(signum: int, frame: object) -> None:
         raise KeyboardInterrupt
 
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield
-    finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
+    return on_stop_signals(handler)
 
 
 def _await_plan(socket: zmq.Socket, session: str, wait_s: float) -> dict[str, Any] | None:

@@ -233,22 +233,13 @@ class Daemon:
             fields["campaign"] = dict(self.campaign)
         return fields
 
-    @contextlib.contextmanager
-    def _signal_handlers(self) -> Iterator[None]:
+    def _signal_handlers(self) -> contextlib.AbstractContextManager[None]:
         """SIGINT and SIGTERM abort the test (main thread only; elsewhere nothing changes)."""
-        if threading.current_thread() is not threading.main_thread():
-            yield
-            return
 
         def handler(signum: int, frame: object) -> None:
             self._signals += 1
 
-        previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            for sig, old in previous.items():
-                signal.signal(sig, old)
+        return on_stop_signals(handler)
 
     def _pump(self) -> bool:
         """Take what the bus has within one block period and publish it; True when the bus had
@@ -420,6 +411,21 @@ class Daemon:
         until = time.monotonic() + self.linger_s
         while time.monotonic() < until and self._signals == signals:
             time.sleep(min(0.05, max(0.0, until - time.monotonic())))
+
+
+@contextlib.contextmanager
+def on_stop_signals(handler: Callable[[int, object], None]) -> Iterator[None]:
+    """``handler`` takes SIGINT and SIGTERM meanwhile, the previous handlers come back after
+    (main thread only: elsewhere nothing changes, as Python allows handlers there only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
 
 
 @contextlib.contextmanager

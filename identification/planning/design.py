@@ -456,12 +456,11 @@ def recommend(
                 if closest is None or ratio < closest[0]:
                     closest = (float(ratio), design)
     if closest is None:
-        shortest = Design((1.0, 2.0), (1, 1), min(DURATIONS_S), 1.0, 15.0, validation_nm)
         raise ConfigError(
             f"no test fits in --max-time {max_time_s:g} s: the shortest (one "
             f"{min(DURATIONS_S):g} s chirp per amplitude"
             f"{', and the validation chirp' if validation_nm else ''}) lasts "
-            f"{shortest.test_time_s:g} s"
+            f"{shortest_test_s(validation_nm):g} s"
         )
     design = best[1] if best is not None else closest[1]
     precision = predict(info, design, recorded)
@@ -572,10 +571,11 @@ def plan_test(
     return info, recommendation
 
 
-def shortest_test_s() -> float:
+def shortest_test_s(validation_nm: float = 0.0) -> float:
     """The shortest test the search can recommend: one chirp of the shortest duration at each of
-    two amplitudes, no validation chirp, s."""
-    return Design((1.0, 2.0), (1, 1), min(DURATIONS_S), 1.0, 15.0, validation_nm=0.0).test_time_s
+    two amplitudes, and the validation chirp (``validation_nm``, N*m; 0 for none), s."""
+    design = Design((1.0, 2.0), (1, 1), min(DURATIONS_S), 1.0, 15.0, validation_nm)
+    return design.test_time_s
 
 
 def _chirp_time(design: Design) -> float:

@@ -49,7 +49,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zmq
@@ -71,6 +71,10 @@ from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions
 from dtid.simulator.vehicle_data import VehicleData
+
+if TYPE_CHECKING:  # imported where used: planning is needed only with a campaign or follow-up
+    from dtid.identification.planning.design import Design
+    from dtid.identification.planning.information import PlanInformation
 
 logger = logging.getLogger(__name__)
 
@@ -212,7 +216,7 @@ class Worker:
         self._pub: zmq.Socket | None = None
         self._poller = zmq.Poller()
         self._report_threads: list[threading.Thread] = []
-        self._campaigns: dict[str, tuple[Any, list[Any]]] = {}
+        self._campaigns: dict[str, tuple[PlanInformation, list[Design]]] = {}
         """Per campaign id, the last round's planning information and its recorded runs (the
         designs of :mod:`dtid.identification.planning.design`): what each new run adds."""
         self.listeners: list[Callable[[str, dict[str, Any]], None]] = []
