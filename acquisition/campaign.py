@@ -100,7 +100,8 @@ def next_round(
     budget_left_s
         Test time (bus) the campaign may still spend, s.
     config
-        The configuration (the next plan must pass its checks: amplitude cap, DBC range).
+        The configuration (the next plan must pass its checks: the amplitude cap; the DBC's
+        range is checked when the round starts, as for any test).
     """
     if document is None:
         return Decision(None, "no_plan", "the worker gave no plan for the next round")
@@ -135,8 +136,7 @@ def round_fields(
     Keys: ``id``, ``round`` (1-based), ``logs`` (the earlier completed rounds' logs, identified
     together with this one), ``identify_nm`` (every round's identifying amplitudes so far and
     this one's, N*m), ``spent_s`` (test time of the earlier rounds, s), ``test_time_s`` (this
-    round's, s), ``max_time_s``,
-    ``targets`` (% at 2 sigma; empty: ``dtid plan``'s defaults).
+    round's, s), ``max_time_s``, ``targets`` (% at 2 sigma; empty: ``dtid plan``'s defaults).
     """
     done = [r for r in rounds if r["status"] == "completed"]
     levels = {a for r in done for a in r["plan"]["amplitudes_nm"]}
