@@ -10,7 +10,12 @@ their identifying runs; the first round's validation chirp stays held out) and p
 targets within the budget left (``dtid plan --after``). The engine idles meanwhile with no test
 torque. :func:`next_round` then decides, and the campaign
 
-* stops ``targets_met`` when the recorded runs meet every target;
+* stops ``targets_met`` when the recorded runs meet every target and the round's parameters
+  agree with the previous round's (the worker's ``agreement``: no parameter moved by more than
+  its predicted scatter allows, :mod:`dtid.identification.planning.agreement`);
+* stops ``inconsistent`` when the targets are said met but the parameters jumped between the
+  rounds: one of the two searches ended at another optimum, and a precision predicted there
+  does not hold (where the targets are not met, the rounds go on and the jump is recorded);
 * stops ``time_budget`` when the next round is longer than the budget left;
 * stops ``aborted`` when a round aborted (no further round on a vehicle that left the safety
   envelope or an operator stopped), or on SIGINT/SIGTERM while it waits for the worker;
@@ -59,6 +64,7 @@ CAMPAIGN_FILE = "campaign.json"
 STOP_REASONS = {
     "targets_met": "the recorded runs meet every precision target",
     "time_budget": "the next round would exceed the test-time budget left",
+    "inconsistent": "the targets are said met but the parameters jumped between the rounds",
     "aborted": "a round was aborted",
     "no_plan": "the worker gave no plan for the next round",
 }
@@ -106,6 +112,21 @@ def next_round(
     if document is None:
         return Decision(None, "no_plan", "the worker gave no plan for the next round")
     if document.get("plan") is None:
+        agreement = document.get("agreement") or {}
+        if document.get("meets_targets") and agreement.get("agree", True) is False:
+            moved = agreement.get("moved_percent") or {}
+            z = agreement.get("z") or {}
+            jumped = ", ".join(
+                f"{name} {moved.get(name) or 0:+.1f} % ({abs(z.get(name) or 0):.0f} sigma)"
+                for name in agreement.get("disagreeing") or []
+            )
+            return Decision(
+                None,
+                "inconsistent",
+                f"the targets are said met, but the parameters jumped from the previous round "
+                f"({jumped}): one of the two identifications ended at another optimum; the "
+                "precision does not hold (check the fits: dtid diagnose, dtid profile)",
+            )
         if document.get("meets_targets"):
             return Decision(None, "targets_met", STOP_REASONS["targets_met"])
         return Decision(None, "no_plan", "the worker's plan holds no next round")
@@ -255,6 +276,7 @@ class Campaign:
                     "status": outcome.status,
                     "reason": outcome.reason,
                     "precision": None,
+                    "agreement": None,
                 }
                 result.rounds.append(record)
                 if outcome.status != "completed":
@@ -280,6 +302,7 @@ class Campaign:
                         "predicted_precision"
                     )
                     record["unmet"] = document.get("unmet")
+                    record["agreement"] = document.get("agreement")
                     self.report(_reached(number, document))
                 spent = sum(r["test_time_s"] for r in result.rounds)
                 decision = next_round(document, config.campaign.max_time_s - spent, config)
@@ -325,7 +348,11 @@ def _reached(number: int, document: Mapping[str, Any]) -> str:
         for name, target in targets.items()
         if name in precision
     ]
-    return f"after round {number}, % at {sigmas:g} sigma: " + ", ".join(parts)
+    line = f"after round {number}, % at {sigmas:g} sigma: " + ", ".join(parts)
+    agreement = document.get("agreement")
+    if agreement and agreement.get("agree") is False:
+        line += "; jumped from the previous round: " + ", ".join(agreement.get("disagreeing") or [])
+    return line
 
 
 def _signals_interrupt() -> contextlib.AbstractContextManager[None]:

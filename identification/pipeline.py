@@ -400,6 +400,7 @@ def run_identification(
     resolution_hz: float = DEFAULT_RESOLUTION_HZ,
     span: float | None = None,
     profile_map: ProfileMap | None = None,
+    warm_starts: Sequence[Mapping[str, float]] = (),
 ) -> IdentificationReport:
     """Identify from measured tests, profile every free parameter and validate.
 
@@ -429,10 +430,23 @@ def run_identification(
         (:func:`dtid.identification.search.parameterization.passenger_car_bounds`).
     profile_map
         How the profiles are computed (:data:`ProfileMap`); None: one after another.
+    warm_starts
+        Optima found before on part of these data (setup-4 values, e.g. an adaptive campaign's
+        earlier round), polished whatever the global search made of them
+        (:func:`dtid.identification.search.identify.identify`).
     """
     selection = identification_runs(tests, identify_amplitudes, resolution_hz)
     report = identify_runs(
-        selection, prior, fixed, bounds, settings, profile_points, progress, span, profile_map
+        selection,
+        prior,
+        fixed,
+        bounds,
+        settings,
+        profile_points,
+        progress,
+        span,
+        profile_map,
+        warm_starts,
     )
     return report.validated(validation_runs(tests, identify_amplitudes, resolution_hz))
 
@@ -475,6 +489,7 @@ def identify_runs(
     progress: Progress | None = None,
     span: float | None = None,
     profile_map: ProfileMap | None = None,
+    warm_starts: Sequence[Mapping[str, float]] = (),
 ) -> IdentificationReport:
     """Identify from held-out identification runs and profile; no validation yet.
 
@@ -509,7 +524,9 @@ def identify_runs(
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds, span=span)
     starts = start_thetas(selection.estimates(), prior)
     settings = settings or SearchSettings()
-    result = identify(tests, par, ident, [[] for _ in tests], settings, progress, starts=starts)
+    result = identify(
+        tests, par, ident, [[] for _ in tests], settings, progress, starts, warm_starts
+    )
     tests = selection.tests
     reasons = inseparable(
         par.free, len(amplitude_levels(e.run.amplitude_nm for e in selection.estimates()))

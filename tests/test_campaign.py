@@ -4,6 +4,7 @@ virtual bus with the worker planning between them."""
 from __future__ import annotations
 
 import json
+import math
 import multiprocessing
 import os
 import shutil
@@ -34,6 +35,7 @@ from dtid.acquisition.plan import TestPlan
 from dtid.cli import main
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
+from dtid.identification.planning.agreement import agreement
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.service.worker import Worker, WorkerOptions
 from dtid.simulator.parameters import reference_parameters
@@ -79,6 +81,46 @@ def test_next_round_stops_when_met_over_budget_refused_or_missing() -> None:
     assert refused.stopped == "no_plan" and "max_amplitude_nm = 15" in refused.message
     assert next_round(None, 500.0, config).stopped == "no_plan"
     assert next_round(_document({"amplitudes_nm": [5]}), 500.0, config).stopped == "no_plan"
+
+
+def test_next_round_does_not_trust_met_targets_when_the_rounds_disagree() -> None:
+    """Truth 4 of the campaign trial: the worker's plan said the targets were met while the
+    search had jumped to another optimum; a jump beyond the rounds' scatter stops the campaign
+    as inconsistent, naming the parameters, and a jump with targets unmet lets the rounds go
+    on."""
+    jumped = agreement(
+        {"c12": 300.0, "x1": 0.70},
+        {"c12": 0.02, "x1": 0.01},
+        {"c12": 330.0, "x1": 0.71},
+        {"c12": 0.01, "x1": 0.01},
+    ).as_dict()
+    assert jumped["disagreeing"] == ["c12"] and not jumped["agree"]
+    config = AcquisitionConfig()
+    stop = next_round({**_document(None, meets=True), "agreement": jumped}, 500.0, config)
+    assert (stop.plan, stop.stopped) == (None, "inconsistent")
+    assert "c12 +10.0 % (4 sigma)" in stop.message
+    go_on = next_round({**_document(FOLLOW_UP), "agreement": jumped}, 500.0, config)
+    assert go_on.stopped is None and go_on.plan is not None
+    held = {**jumped, "agree": True, "disagreeing": []}
+    met = next_round({**_document(None, meets=True), "agreement": held}, 500.0, config)
+    assert met.stopped == "targets_met"
+
+
+def test_agreement_measures_each_move_against_both_rounds_scatter() -> None:
+    """z = (after - before) / hypot(sigma_before, sigma_after), absolute sigmas from relative
+    precisions: 0.1 / hypot(0.02 * 1.0, 0.01 * 1.1) = 4.38; a parameter at 0 has no relative
+    move; one without a scatter in either round is not judged."""
+    found = agreement(
+        {"a": 1.0, "b": 0.0, "c": 2.0, "d": 1.0},
+        {"a": 0.02, "b": 0.5, "c": 0.0, "d": 0.1},
+        {"a": 1.1, "b": 0.01, "c": 2.5, "d": 1.0},
+        {"a": 0.01, "b": 0.5, "c": 0.0},
+    )
+    assert found.z["a"] == pytest.approx(0.1 / math.hypot(0.02, 0.011))
+    assert found.moved["a"] == pytest.approx(0.1)
+    assert found.z["b"] == pytest.approx(2.0) and found.moved["b"] is None
+    assert found.z["c"] is None and "d" not in found.z
+    assert found.disagreeing == ["a"] and "a +10.0 % (4 sigma)" in found.summary()
 
 
 def test_round_fields_tell_the_worker_the_earlier_rounds_and_the_budget() -> None:

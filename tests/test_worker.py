@@ -557,13 +557,19 @@ def test_replay_alone_gives_the_live_result(
 
 
 def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_budget(
-    session: SimulatedSession, ipc_dir: Path
+    session: SimulatedSession, ipc_dir: Path, offline: dict
 ) -> None:
     """A round of an adaptive campaign (dtid.acquisition.campaign): the worker identifies it
     together with the earlier round's log, validates on the earlier round's validation chirp
-    (this round has none), and publishes the next round's plan within the budget left."""
+    (this round has none), and publishes the next round's plan within the budget left, with how
+    far the parameters moved from what the earlier round identified (its files beside its log:
+    here the same recording identified alone, so they agree)."""
     earlier = ipc_dir / "round1.blf"
     shutil.copyfile(session.log_path, earlier)
+    (ipc_dir / "r.json").write_text(json.dumps(offline["identify"]))
+    precision = {"J_sum": 0.01, "x1": 0.02, "c12": 0.03, "d12": 0.1, "Tc12": 0.5}
+    recorded = {"recorded": {"predicted_precision": precision}}
+    (ipc_dir / "follow-up.json").write_text(json.dumps(recorded))
     events = [{**e, "session": "s2"} for e in session.events]
     events[0]["plan"] = {**events[0]["plan"], "validation_nm": 0.0}
     events[0]["campaign"] = {
@@ -594,6 +600,9 @@ def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_
     assert sorted(round(r["amplitude_nm"]) for r in plan["recorded"]["runs"]) == [5, 5, 10, 10]
     if plan["plan"] is not None:
         assert plan["test_time_s"] <= 1000.0 - 144.0
+    validate({k: v for k, v in plan.items() if k != "session"}, "plan")
+    assert plan["agreement"]["agree"], plan["agreement"]
+    assert sorted(plan["agreement"]["z"]) == sorted(precision)
 
 
 def test_a_new_session_resets_the_worker(

@@ -42,7 +42,7 @@ import dataclasses
 import itertools
 import logging
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -302,6 +302,7 @@ def identify(
     settings: SearchSettings | None = None,
     progress: Progress | None = None,
     starts: Sequence[dict[str, float]] = (),
+    warm_starts: Sequence[Mapping[str, float]] = (),
 ) -> Identification:
     """Identify the free parameters from the identification runs and validate on the others.
 
@@ -320,6 +321,12 @@ def identify(
     starts
         Setup-4 start values (see :mod:`dtid.identification.search.start_values`); they join the
         initial population, the rest of which covers the whole box (a Latin hypercube).
+    warm_starts
+        Optima found before on part of these data (setup-4 values; an adaptive campaign's earlier
+        round): polished in stage 2 whatever the evolution made of them, so that the search
+        keeps their basin unless the data now fit another better. Without it the campaign
+        trial's truth 6 was identified within the targets from round 1 and then, from rounds 1
+        and 2 together, in another basin (J3 +51 %).
     """
     settings = settings or SearchSettings()
     began = time.perf_counter()
@@ -342,6 +349,7 @@ def identify(
         step = settings.polish_step
         starts_2 = _apart(population, settings.polish_starts, settings.start_distance)
         starts_2 += _gear_scan(stages["global"], starts_2[0], settings.scan_starts)
+        starts_2 += [_unit_start(coordinates, start) for start in warm_starts]
         polished = [
             _polish(stages["polish"], member, settings.polish_evaluations, step, progress)
             for member in starts_2
@@ -426,10 +434,8 @@ def _global_search(
     population = stats.qmc.LatinHypercube(n_free, seed=settings.seed).random(
         max(settings.popsize * n_free, MIN_POPULATION)
     )
-    parameterization = objective.parameterization
     for row, start in enumerate(starts):
-        theta = np.array([[start[name] for name in THETA_NAMES]])
-        population[row] = np.clip(parameterization.unit(theta)[0], 0.0, 1.0)
+        population[row] = _unit_start(objective.parameterization, start)
     result = optimize.differential_evolution(
         lambda u: objective(u.T),
         [(0.0, 1.0)] * n_free,
@@ -444,6 +450,12 @@ def _global_search(
         strategy="currenttobest1bin",  # each member keeps more of itself than in best1bin
     )
     return result.population, result.population_energies
+
+
+def _unit_start(parameterization: Parameterization, start: Mapping[str, float]) -> np.ndarray:
+    """Setup-4 values as the search's normalised free values, clipped into the box."""
+    theta = np.array([[start[name] for name in THETA_NAMES]])
+    return np.clip(parameterization.unit(theta)[0], 0.0, 1.0)
 
 
 GEAR_BLOCK = ("x12", "c23", "d23", "eps23")

@@ -178,6 +178,9 @@ class _Session:
     """A campaign round's earlier rounds, read from their logs (identified together with it)."""
     precision: dict[str, float] | None = None
     """Precision the campaign's runs reach so far, % at 2 sigma (after each identifying run)."""
+    before: tuple[dict[str, float], dict[str, float]] | None = None
+    """A campaign round's previous round: what it identified and the precision its plan
+    predicted for the runs recorded then (relative, 1 sigma); None in round 1 or unreadable."""
 
 
 class Worker:
@@ -591,6 +594,7 @@ class Worker:
                         )
                         for path in logs
                     ]
+                    session.before = self._previous_round(Path(logs[-1]))
                 selection = live.identification_selection(data, session.earlier)
                 report = identify_runs(
                     selection,
@@ -598,6 +602,7 @@ class Worker:
                     settings=options.settings,
                     profile_points=options.profile_points,
                     progress=progress,
+                    warm_starts=[session.before[0]] if session.before else (),
                 )
             except BaseException as error:  # handed to the loop, which reports it
                 session.outcome.append(error)
@@ -607,6 +612,22 @@ class Worker:
         session.thread = threading.Thread(target=run, name=f"identify-{session.id}", daemon=True)
         self._progress(session, "identifying")
         session.thread.start()
+
+    def _previous_round(self, log: Path) -> tuple[dict[str, float], dict[str, float]] | None:
+        """What the worker identified from the previous campaign round (its folder's
+        identification JSON) and the precision its plan predicted then (its follow-up plan);
+        None, with a warning, where either is missing or unreadable (the round is then identified
+        without the warm start and the rounds are not compared)."""
+        folder = log.parent
+        paths = (self.options.json_path or folder / "identification.json", folder / FOLLOW_UP_FILE)
+        try:
+            identified, plan = (_read_json(path) for path in paths)
+            values = {str(k): float(v) for k, v in identified["parameters"].items()}
+            precision = plan["recorded"]["predicted_precision"] or {}
+            return values, {str(k): float(v) for k, v in precision.items()}
+        except (OSError, KeyError, TypeError, ValueError, AttributeError) as error:
+            logger.warning("the previous round (%s) is not compared: %s", folder, error)
+            return None
 
     @staticmethod
     def _validated_by_earlier(session: _Session, live: LiveSession) -> IdentificationReport:
@@ -711,6 +732,7 @@ class Worker:
         campaign sees how long the next round would be); a failure is published as a plan
         without a test and with the ``error``, so the campaign stops saying why.
         """
+        from dtid.identification.planning.agreement import agreement
         from dtid.identification.planning.design import (
             DEFAULT_MAX_TIME_S,
             parse_targets,
@@ -770,6 +792,12 @@ class Worker:
             "speed_window_rpm": self.options.safety.speed_window_rpm,
         }
         document = plan_document(info, recommendation, targets, limits)
+        recorded = document["recorded"]["predicted_precision"]  # type: ignore[index]
+        if session.before is not None and recorded:
+            values, precision = session.before
+            document["agreement"] = agreement(
+                values, precision, report.parameters, recorded
+            ).as_dict()
         if campaign is not None:
             self._campaigns[str(campaign.get("id"))] = (info, list(recommendation.recorded))
         self._publish("plan", {"session": session.id, **document})
