@@ -25,11 +25,13 @@ from dtid.acquisition.config import SafetyConfig
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import run_identification
+from dtid.identification.planning.agreement import agreement
 from dtid.identification.planning.design import (
     DEFAULT_TARGETS_PERCENT,
     PRECISION_NAMES,
     SIGMAS,
     plan_test,
+    predict,
     run_designs,
     shortest_test_s,
 )
@@ -57,6 +59,7 @@ def main() -> None:
     tests: list[MeasuredTest] = []
     plan, spent, rounds, stopped = TestPlan(), 0.0, [], "max_rounds"
     identify_nm = sorted(set(plan.amplitudes_nm))
+    before: tuple[dict[str, float], dict[str, float]] | None = None
     for number in range(1, args.max_rounds + 1):
         result = simulate(truth, plan, vehicle, seed=7000 + number)
         data = from_simulation(result)
@@ -64,7 +67,11 @@ def main() -> None:
         spent += plan.end_s
         began = time.perf_counter()
         report = run_identification(
-            tests, reference_parameters(), identify_amplitudes=identify_nm, profile_points=0
+            tests,
+            reference_parameters(),
+            identify_amplitudes=identify_nm,
+            profile_points=0,
+            warm_starts=[before[0]] if before else (),
         )
         seconds = time.perf_counter() - began
         fit = report.fit
@@ -75,7 +82,7 @@ def main() -> None:
             for i in runs
         )
         setpoint = sum(t.setpoint_rpm for t in fit.tests) / len(fit.tests)
-        _, recommendation = plan_test(
+        info, recommendation = plan_test(
             report.identification.parameters,
             DEFAULT_TARGETS_PERCENT,
             SafetyConfig(),
@@ -87,6 +94,9 @@ def main() -> None:
         )
         errors = relative_errors(report.identification.theta, truth)
         design = recommendation.design
+        reached = predict(info, None, recommendation.recorded)
+        agreed = agreement(*before, report.parameters, reached) if before else None
+        before = (report.parameters, reached)
         rounds.append(
             {
                 "round": number,
@@ -98,6 +108,10 @@ def main() -> None:
                 "errors": errors,
                 "next": design.as_dict(setpoint) if design else None,
                 "unmet_next": [u.name for u in recommendation.unmet],
+                "precision": {n: round(v, 5) for n, v in reached.items()},
+                "agreement": agreed.as_dict() if agreed else None,
+                "objective": report.identification.objective,
+                "validation_nrmse": list(report.identification.validation_nrmse.values()),
             }
         )
         missed = [n for n in PRECISION_NAMES if 100 * abs(errors[n]) > DEFAULT_TARGETS_PERCENT[n]]
@@ -105,11 +119,12 @@ def main() -> None:
             f"round {number}: {plan.end_s:.0f} s of test ({spent:.0f} s in all), identified in "
             f"{seconds:.0f} s; outside the targets: "
             + (", ".join(f"{n} {100 * errors[n]:+.1f} %" for n in missed) or "none")
-            + f"; next: {design if design else 'none (the plan says the targets are met)'}",
+            + f"; next: {design if design else 'none (the plan says the targets are met)'}"
+            + (f"; from the previous round: {agreed.summary()}" if agreed else ""),
             flush=True,
         )
         if design is None:
-            stopped = "targets_met"
+            stopped = "targets_met" if agreed is None or agreed.agree else "inconsistent"
             break
         if design.test_time_s > args.max_time - spent:
             stopped = "time_budget"
