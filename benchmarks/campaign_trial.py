@@ -5,9 +5,11 @@ worker), without the bus: round 1 is the paper's test, recorded on the truth (on
 identification trial's random drivetrains with its own idle loop, ECU timing, engine and noise,
 which the model side does not share: it reads the loop from each recording and is told the
 engine); after each round every round so far is identified together by the whole search
-(profiles off, as the worker), the next round is planned at what was identified with every
-recorded run counted in and the budget left, as the worker plans it, and recorded; until the
-plan says the targets are met or the next round does not fit. The errors of the last
+(profiles off, as the worker, the previous round's optimum polished too), the next round is
+planned at what was identified with every recorded run counted in and the budget left, as the
+worker plans it, and the rounds are compared (:mod:`dtid.identification.planning.agreement`);
+until the plan says the targets are met (``targets_met``, or ``inconsistent`` where the
+parameters jumped from the previous round) or the next round does not fit. The errors of the last
 identification against the truth, next to the targets, say whether the campaign kept its word.
 
     PYTHONPATH=. python benchmarks/campaign_trial.py --truth 2 \
