@@ -114,18 +114,12 @@ def next_round(
     if document.get("plan") is None:
         agreement = document.get("agreement") or {}
         if document.get("meets_targets") and agreement.get("agree", True) is False:
-            moved = agreement.get("moved_percent") or {}
-            z = agreement.get("z") or {}
-            jumped = ", ".join(
-                f"{name} {moved.get(name) or 0:+.1f} % ({abs(z.get(name) or 0):.0f} sigma)"
-                for name in agreement.get("disagreeing") or []
-            )
             return Decision(
                 None,
                 "inconsistent",
-                f"the targets are said met, but the parameters jumped from the previous round "
-                f"({jumped}): one of the two identifications ended at another optimum; the "
-                "precision does not hold (check the fits: dtid diagnose, dtid profile)",
+                f"the targets are said met, but from the previous round {agreement.get('summary')}"
+                ": one of the two identifications ended at another optimum; the precision does "
+                "not hold (check the fits: dtid diagnose, dtid profile)",
             )
         if document.get("meets_targets"):
             return Decision(None, "targets_met", STOP_REASONS["targets_met"])

@@ -53,9 +53,11 @@ class Agreement:
         return not self.disagreeing
 
     def as_dict(self) -> dict[str, object]:
-        """JSON form: ``agree``, ``disagreeing``, ``z``, ``moved_percent``, ``z_limit``."""
+        """JSON form: ``agree``, ``disagreeing``, ``z``, ``moved_percent``, ``z_limit`` and the
+        :meth:`summary`."""
         return {
             "agree": self.agree,
+            "summary": self.summary(),
             "disagreeing": self.disagreeing,
             "z": {n: None if z is None else round(z, 2) for n, z in self.z.items()},
             "moved_percent": {
