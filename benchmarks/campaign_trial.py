@@ -27,7 +27,7 @@ from dtid.acquisition.config import SafetyConfig
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import run_identification
-from dtid.identification.planning.agreement import agreement
+from dtid.identification.planning.agreement import agreement, scatter
 from dtid.identification.planning.design import (
     DEFAULT_TARGETS_PERCENT,
     PRECISION_NAMES,
@@ -97,8 +97,9 @@ def main() -> None:
         errors = relative_errors(report.identification.theta, truth)
         design = recommendation.design
         reached = predict(info, None, recommendation.recorded)
-        agreed = agreement(*before, report.parameters, reached) if before else None
-        before = (report.parameters, reached)
+        sd = scatter(reached, info.prior)
+        agreed = agreement(*before, report.parameters, sd) if before else None
+        before = (report.parameters, sd)
         rounds.append(
             {
                 "round": number,

@@ -35,7 +35,7 @@ from dtid.acquisition.plan import TestPlan
 from dtid.cli import main
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
-from dtid.identification.planning.agreement import agreement
+from dtid.identification.planning.agreement import agreement, scatter
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.service.worker import Worker, WorkerOptions
 from dtid.simulator.parameters import reference_parameters
@@ -90,9 +90,9 @@ def test_next_round_does_not_trust_met_targets_when_the_rounds_disagree() -> Non
     on."""
     jumped = agreement(
         {"c12": 300.0, "x1": 0.70},
-        {"c12": 0.02, "x1": 0.01},
+        {"c12": 6.0, "x1": 0.007},
         {"c12": 330.0, "x1": 0.71},
-        {"c12": 0.01, "x1": 0.01},
+        {"c12": 3.3, "x1": 0.0071},
     ).as_dict()
     assert jumped["disagreeing"] == ["c12"] and not jumped["agree"]
     config = AcquisitionConfig()
@@ -107,20 +107,30 @@ def test_next_round_does_not_trust_met_targets_when_the_rounds_disagree() -> Non
 
 
 def test_agreement_measures_each_move_against_both_rounds_scatter() -> None:
-    """z = (after - before) / hypot(sigma_before, sigma_after), absolute sigmas from relative
-    precisions: 0.1 / hypot(0.02 * 1.0, 0.01 * 1.1) = 4.38; a parameter at 0 has no relative
-    move; one without a scatter in either round is not judged."""
+    """z = (after - before) / hypot(sd_before, sd_after): 0.1 / hypot(0.02, 0.011) = 4.38; a
+    parameter that was 0 has no relative move but a z; one without a scatter in either round is
+    not judged, one missing from a round not compared."""
     found = agreement(
         {"a": 1.0, "b": 0.0, "c": 2.0, "d": 1.0},
-        {"a": 0.02, "b": 0.5, "c": 0.0, "d": 0.1},
+        {"a": 0.02, "b": 0.005, "c": 0.0, "d": 0.1},
         {"a": 1.1, "b": 0.01, "c": 2.5, "d": 1.0},
-        {"a": 0.01, "b": 0.5, "c": 0.0},
+        {"a": 0.011, "b": 0.0, "c": 0.0},
     )
     assert found.z["a"] == pytest.approx(0.1 / math.hypot(0.02, 0.011))
     assert found.moved["a"] == pytest.approx(0.1)
     assert found.z["b"] == pytest.approx(2.0) and found.moved["b"] is None
     assert found.z["c"] is None and "d" not in found.z
     assert found.disagreeing == ["a"] and "a +10.0 % (4 sigma)" in found.summary()
+
+
+def test_scatter_is_the_precision_times_the_value_planned_for() -> None:
+    """A plan's precision is relative to its prior (where the friction was identified at 0,
+    the value the planning put in its place), so a move from 0 still has a scatter."""
+    prior = reference_parameters()
+    sd = scatter({"J_sum": 0.01, "J3": 0.02, "Tc12": 0.5, "K": 0.1}, prior)
+    assert sd["J_sum"] == pytest.approx(0.01 * (prior.J1 + prior.J2 + prior.J3))
+    assert sd["J3"] == pytest.approx(0.02 * prior.J3)
+    assert sd["Tc12"] == pytest.approx(0.5 * prior.Tc12) and "K" not in sd
 
 
 def test_round_fields_tell_the_worker_the_earlier_rounds_and_the_budget() -> None:

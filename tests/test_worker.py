@@ -40,6 +40,7 @@ from dtid.identification.samples.recording import load_recording
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.service.live import EventLog, LiveSession
 from dtid.identification.service.worker import Worker, WorkerOptions, endpoint
+from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 from dtid.simulator.vehicle_frames import simulation_frames
 
@@ -568,7 +569,10 @@ def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_
     shutil.copyfile(session.log_path, earlier)
     (ipc_dir / "r.json").write_text(json.dumps(offline["identify"]))
     precision = {"J_sum": 0.01, "x1": 0.02, "c12": 0.03, "d12": 0.1, "Tc12": 0.5}
-    recorded = {"recorded": {"predicted_precision": precision}}
+    recorded = {
+        "recorded": {"predicted_precision": precision},
+        "prior": reference_parameters().as_dict(),
+    }
     (ipc_dir / "follow-up.json").write_text(json.dumps(recorded))
     events = [{**e, "session": "s2"} for e in session.events]
     events[0]["plan"] = {**events[0]["plan"], "validation_nm": 0.0}

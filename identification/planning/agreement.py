@@ -9,7 +9,9 @@ predicted at either optimum says nothing about the truth. The check: for each pa
     z = (theta_k - theta_{k-1}) / sqrt(sigma_{k-1}^2 + sigma_k^2)
 
 with each sigma the 1-sigma precision the worker predicted for the runs recorded up to that
-round (absolute: the relative precision times the value). For nested data the difference's
+round, absolute: the relative precision times the value it was predicted for (the plan's
+``prior``: the value identified, or where that is 0, as the friction at its bound often is, the
+value the planning put in its place). For nested data the difference's
 variance is sigma_{k-1}^2 - sigma_k^2 (the later estimate is the more efficient); the sum is
 larger, so the check is conservative: it flags a jump no round's scatter explains, not a
 drift within it. The rounds disagree when any |z| exceeds :data:`Z_LIMIT`.
@@ -20,6 +22,10 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
+
+from dtid.identification.search.parameterization import theta_from_parameters
+from dtid.simulator.parameters import DrivetrainParameters
 
 Z_LIMIT = 4.0
 """|z| above which two rounds disagree: with about 13 parameters, a Gaussian scatter passes one
@@ -71,36 +77,57 @@ class Agreement:
         if self.agree:
             return "the parameters moved within their scatter"
         parts = [
-            f"{n} {100 * (self.moved[n] or 0.0):+.1f} % ({abs(self.z[n] or 0.0):.0f} sigma)"
+            f"{n} "
+            + ("from 0" if self.moved[n] is None else f"{100 * (self.moved[n] or 0.0):+.1f} %")
+            + f" ({abs(self.z[n] or 0.0):.0f} sigma)"
             for n in self.disagreeing
         ]
         return "the parameters jumped: " + ", ".join(parts)
 
 
+def scatter(precision: Mapping[str, float], prior: DrivetrainParameters) -> dict[str, float]:
+    """Absolute 1-sigma scatter by name, SI units.
+
+    Parameters
+    ----------
+    precision
+        Relative 1-sigma precisions by name (a plan's ``recorded.predicted_precision``).
+    prior
+        The parameters they were predicted for (the plan's ``prior``).
+    """
+    values = {**theta_from_parameters(prior), "J1": prior.J1, "J2": prior.J2, "J3": prior.J3}
+    return {name: float(sd) * abs(values[name]) for name, sd in precision.items() if name in values}
+
+
+def plan_scatter(plan: Mapping[str, Any]) -> dict[str, float]:
+    """:func:`scatter` of the runs a plan document (``dtid plan --json``'s) counts as recorded."""
+    prior = DrivetrainParameters(**{str(k): float(v) for k, v in plan["prior"].items()})
+    return scatter(plan["recorded"]["predicted_precision"] or {}, prior)
+
+
 def agreement(
     before: Mapping[str, float],
-    before_precision: Mapping[str, float],
+    before_sd: Mapping[str, float],
     after: Mapping[str, float],
-    after_precision: Mapping[str, float],
+    after_sd: Mapping[str, float],
 ) -> Agreement:
-    """Compare two rounds' identified values with their predicted precisions.
+    """Compare two rounds' identified values with their predicted scatter.
 
     Parameters
     ----------
     before, after
         Identified values by name (SI units), the earlier round's and this one's.
-    before_precision, after_precision
-        Their predicted relative 1-sigma precisions by name (the worker's plan's
-        ``recorded.predicted_precision``); the names in both precisions and both values are
-        compared.
+    before_sd, after_sd
+        Their predicted absolute 1-sigma scatter by name (:func:`scatter`); the names in both
+        scatters and both values are compared.
     """
     z: dict[str, float | None] = {}
     moved: dict[str, float | None] = {}
-    for name in before_precision:
-        if name not in after_precision or name not in before or name not in after:
+    for name in before_sd:
+        if name not in after_sd or name not in before or name not in after:
             continue
         b, a = float(before[name]), float(after[name])
-        scatter = math.hypot(before_precision[name] * b, after_precision[name] * a)
-        z[name] = (a - b) / scatter if scatter > 0 and math.isfinite(scatter) else None
+        sd = math.hypot(before_sd[name], after_sd[name])
+        z[name] = (a - b) / sd if sd > 0 and math.isfinite(sd) else None
         moved[name] = a / b - 1 if b != 0 else None
     return Agreement(z, moved)

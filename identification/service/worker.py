@@ -64,6 +64,7 @@ from dtid.errors import ConfigError, DtidError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
+from dtid.identification.planning.agreement import agreement, plan_scatter
 from dtid.identification.samples.recording import load_recording
 from dtid.identification.search.identify import SearchSettings, amplitude_levels
 from dtid.identification.service.live import EventLog, LiveSession
@@ -179,8 +180,8 @@ class _Session:
     precision: dict[str, float] | None = None
     """Precision the campaign's runs reach so far, % at 2 sigma (after each identifying run)."""
     before: tuple[dict[str, float], dict[str, float]] | None = None
-    """A campaign round's previous round: what it identified and the precision its plan
-    predicted for the runs recorded then (relative, 1 sigma); None in round 1 or unreadable."""
+    """A campaign round's previous round: what it identified and the scatter its plan predicted
+    for the runs recorded then (absolute, 1 sigma); None in round 1 or unreadable."""
 
 
 class Worker:
@@ -615,7 +616,7 @@ class Worker:
 
     def _previous_round(self, log: Path) -> tuple[dict[str, float], dict[str, float]] | None:
         """What the worker identified from the previous campaign round (its folder's
-        identification JSON) and the precision its plan predicted then (its follow-up plan);
+        identification JSON) and the scatter its plan predicted then (its follow-up plan);
         None, with a warning, where either is missing or unreadable (the round is then identified
         without the warm start and the rounds are not compared)."""
         folder = log.parent
@@ -623,8 +624,7 @@ class Worker:
         try:
             identified, plan = (_read_json(path) for path in paths)
             values = {str(k): float(v) for k, v in identified["parameters"].items()}
-            precision = plan["recorded"]["predicted_precision"] or {}
-            return values, {str(k): float(v) for k, v in precision.items()}
+            return values, plan_scatter(plan)
         except (OSError, KeyError, TypeError, ValueError, AttributeError) as error:
             logger.warning("the previous round (%s) is not compared: %s", folder, error)
             return None
@@ -732,7 +732,6 @@ class Worker:
         campaign sees how long the next round would be); a failure is published as a plan
         without a test and with the ``error``, so the campaign stops saying why.
         """
-        from dtid.identification.planning.agreement import agreement
         from dtid.identification.planning.design import (
             DEFAULT_MAX_TIME_S,
             parse_targets,
@@ -792,11 +791,10 @@ class Worker:
             "speed_window_rpm": self.options.safety.speed_window_rpm,
         }
         document = plan_document(info, recommendation, targets, limits)
-        recorded = document["recorded"]["predicted_precision"]  # type: ignore[index]
-        if session.before is not None and recorded:
-            values, precision = session.before
+        if session.before is not None and recommendation.recorded:
+            values, sd = session.before
             document["agreement"] = agreement(
-                values, precision, report.parameters, recorded
+                values, sd, report.parameters, plan_scatter(document)
             ).as_dict()
         if campaign is not None:
             self._campaigns[str(campaign.get("id"))] = (info, list(recommendation.recorded))
