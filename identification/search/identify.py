@@ -97,7 +97,7 @@ class SearchSettings:
         own).
     newton_iterations
         Most Levenberg-Marquardt steps of stage 4 (it stops before, at the first step that
-        does not improve; 4-11 steps on the identification trial's truths).
+        does not improve or hold: 0-10 steps kept on the identification trial's eleven truths).
     seed
         Seed of the search.
     """
