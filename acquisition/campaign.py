@@ -10,12 +10,17 @@ their identifying runs; the first round's validation chirp stays held out) and p
 targets within the budget left (``dtid plan --after``). The engine idles meanwhile with no test
 torque. :func:`next_round` then decides, and the campaign
 
-* stops ``targets_met`` when the recorded runs meet every target and the round's parameters
-  agree with the previous round's (the worker's ``agreement``: no parameter moved by more than
-  its predicted scatter allows, :mod:`dtid.identification.planning.agreement`);
+* stops ``targets_met`` when the recorded runs meet every target, the model explains the
+  recordings and the round's parameters agree with the previous round's (the worker's
+  ``agreement``: no parameter moved by more than its predicted scatter allows,
+  :mod:`dtid.identification.planning.agreement`);
 * stops ``inconsistent`` when the targets are said met but the parameters jumped between the
   rounds: one of the two searches ended at another optimum, and a precision predicted there
   does not hold (where the targets are not met, the rounds go on and the jump is recorded);
+* stops ``inadequate`` when the targets are said met but the model at what was identified does
+  not explain the recordings (the worker's ``fit``: the diagnosis's global adequacy test), as
+  after a search that ended at another optimum (the campaign trial's truth 4, which agreed with
+  itself round after round);
 * stops ``time_budget`` when the next round is longer than the budget left;
 * stops ``aborted`` when a round aborted (no further round on a vehicle that left the safety
   envelope or an operator stopped), or on SIGINT/SIGTERM while it waits for the worker;
@@ -65,6 +70,7 @@ STOP_REASONS = {
     "targets_met": "the recorded runs meet every precision target",
     "time_budget": "the next round would exceed the test-time budget left",
     "inconsistent": "the targets are said met but the parameters jumped between the rounds",
+    "inadequate": "the targets are said met but the model does not explain the recordings",
     "aborted": "a round was aborted",
     "no_plan": "the worker gave no plan for the next round",
 }
@@ -120,6 +126,17 @@ def next_round(
                 f"the targets are said met, but from the previous round {agreement.get('summary')}"
                 ": one of the two identifications ended at another optimum; the precision does "
                 "not hold (check the fits: dtid diagnose, dtid profile)",
+            )
+        fit = document.get("fit") or {}
+        if document.get("meets_targets") and fit.get("adequate", True) is False:
+            return Decision(
+                None,
+                "inadequate",
+                f"the targets are said met, but the model does not explain the recordings "
+                f"({fit.get('bands')} significant bands, global p = "
+                f"{float(fit.get('global_p_value') or 0.0):.2g}): the search may have ended at "
+                "another optimum, or the model lacks physics (dtid diagnose); the precision does "
+                "not hold",
             )
         if document.get("meets_targets"):
             return Decision(None, "targets_met", STOP_REASONS["targets_met"])
@@ -271,6 +288,7 @@ class Campaign:
                     "reason": outcome.reason,
                     "precision": None,
                     "agreement": None,
+                    "fit": None,
                 }
                 result.rounds.append(record)
                 if outcome.status != "completed":
@@ -297,6 +315,7 @@ class Campaign:
                     )
                     record["unmet"] = document.get("unmet")
                     record["agreement"] = document.get("agreement")
+                    record["fit"] = document.get("fit")
                     self.report(_reached(number, document))
                 spent = sum(r["test_time_s"] for r in result.rounds)
                 decision = next_round(document, config.campaign.max_time_s - spent, config)

@@ -106,6 +106,21 @@ def test_next_round_does_not_trust_met_targets_when_the_rounds_disagree() -> Non
     assert met.stopped == "targets_met"
 
 
+def test_next_round_does_not_trust_met_targets_when_the_model_misses_the_recordings() -> None:
+    """Two rounds can agree and both sit at another optimum (the campaign trial's truth 4):
+    the worker's adequacy test then says the model does not explain the recordings."""
+    config = AcquisitionConfig()
+    missed = {"adequate": False, "global_p_value": 3e-9, "bands": 4}
+    stop = next_round({**_document(None, meets=True), "fit": missed}, 500.0, config)
+    assert (stop.plan, stop.stopped) == (None, "inadequate")
+    assert "4 significant bands, global p = 3e-09" in stop.message
+    go_on = next_round({**_document(FOLLOW_UP), "fit": missed}, 500.0, config)
+    assert go_on.stopped is None
+    fits = {**missed, "adequate": True, "bands": 0, "global_p_value": 0.4}
+    met = next_round({**_document(None, meets=True), "fit": fits}, 500.0, config)
+    assert met.stopped == "targets_met"
+
+
 def test_agreement_measures_each_move_against_both_rounds_scatter() -> None:
     """z = (after - before) / hypot(sd_before, sd_after): 0.1 / hypot(0.02, 0.011) = 4.38; a
     parameter that was 0 has no relative move but a z; one without a scatter in either round is

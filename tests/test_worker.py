@@ -607,6 +607,7 @@ def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_
     validate({k: v for k, v in plan.items() if k != "session"}, "plan")
     assert plan["agreement"]["agree"], plan["agreement"]
     assert sorted(plan["agreement"]["z"]) == sorted(precision)
+    assert set(plan["fit"]) == {"adequate", "global_p_value", "bands"}  # a campaign's plan
 
 
 def test_a_new_session_resets_the_worker(
