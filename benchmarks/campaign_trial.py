@@ -7,9 +7,11 @@ which the model side does not share: it reads the loop from each recording and i
 engine); after each round every round so far is identified together by the whole search
 (profiles off, as the worker, the previous round's optimum polished too), the next round is
 planned at what was identified with every recorded run counted in and the budget left, as the
-worker plans it, and the rounds are compared (:mod:`dtid.identification.planning.agreement`);
-until the plan says the targets are met (``targets_met``, or ``inconsistent`` where the
-parameters jumped from the previous round) or the next round does not fit. The errors of the last
+worker plans it, the rounds are compared (:mod:`dtid.identification.planning.agreement`) and
+the fit tested (:func:`dtid.identification.diagnosis.mismatch.adequacy`); until the plan says
+the targets are met (``targets_met``, or ``inconsistent`` where the parameters jumped from the
+previous round, ``inadequate`` where the model does not explain the recordings) or the next
+round does not fit. The errors of the last
 identification against the truth, next to the targets, say whether the campaign kept its word.
 
     PYTHONPATH=. python benchmarks/campaign_trial.py --truth 2 \
@@ -25,6 +27,7 @@ from benchmarks.identification_trial import draw_truth, draw_vehicle
 from benchmarks.plan_trial import relative_errors
 from dtid.acquisition.config import SafetyConfig
 from dtid.acquisition.plan import TestPlan
+from dtid.identification.diagnosis.mismatch import adequacy
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import run_identification
 from dtid.identification.planning.agreement import agreement, scatter
@@ -97,6 +100,7 @@ def main() -> None:
         errors = relative_errors(report.identification.theta, truth)
         design = recommendation.design
         reached = predict(info, None, recommendation.recorded)
+        fit_check = adequacy(report)
         sd = scatter(reached, info.prior)
         agreed = agreement(*before, report.parameters, sd) if before else None
         before = (report.parameters, sd)
@@ -113,6 +117,7 @@ def main() -> None:
                 "unmet_next": [u.name for u in recommendation.unmet],
                 "precision": {n: round(v, 5) for n, v in reached.items()},
                 "agreement": agreed.as_dict() if agreed else None,
+                "fit": fit_check,
                 "objective": report.identification.objective,
                 "validation_nrmse": list(report.identification.validation_nrmse.values()),
             }
@@ -123,11 +128,18 @@ def main() -> None:
             f"{seconds:.0f} s; outside the targets: "
             + (", ".join(f"{n} {100 * errors[n]:+.1f} %" for n in missed) or "none")
             + f"; next: {design if design else 'none (the plan says the targets are met)'}"
-            + (f"; from the previous round: {agreed.summary()}" if agreed else ""),
+            + (f"; from the previous round: {agreed.summary()}" if agreed else "")
+            + (f"; fit adequate: {fit_check['adequate']}" if fit_check else ""),
             flush=True,
         )
         if design is None:
-            stopped = "targets_met" if agreed is None or agreed.agree else "inconsistent"
+            stopped = (  # as dtid.acquisition.campaign.next_round decides
+                "inconsistent"
+                if agreed is not None and not agreed.agree
+                else "inadequate"
+                if fit_check is not None and not fit_check["adequate"]
+                else "targets_met"
+            )
             break
         if design.test_time_s > args.max_time - spent:
             stopped = "time_budget"

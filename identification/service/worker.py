@@ -61,6 +61,7 @@ from dtid.acquisition.server import bind
 from dtid.acquisition.stream import KINDS, REPLAY_PAGE
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
+from dtid.identification.diagnosis.mismatch import adequacy
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
@@ -797,7 +798,7 @@ class Worker:
                 values, sd, report.parameters, plan_scatter(document)
             ).as_dict()
         if campaign is not None:
-            document["fit"] = _fit_check(report)
+            document["fit"] = adequacy(report)
         if campaign is not None:
             self._campaigns[str(campaign.get("id"))] = (info, list(recommendation.recorded))
         self._publish("plan", {"session": session.id, **document})
@@ -873,30 +874,6 @@ class Worker:
                 self._pub.send_multipart([topic.encode(), body.encode()])
             for callback in self.listeners:
                 callback(topic, document)
-
-
-def _fit_check(report: IdentificationReport) -> dict[str, Any] | None:
-    """Does the identified model explain the recordings? The diagnosis's global adequacy test
-    (:func:`dtid.identification.diagnosis.mismatch.mismatch_map`, family-wise 1 %) on the
-    identifying and validating runs, for a campaign's plan (``fit``: ``adequate``,
-    ``global_p_value``, ``bands``); None, logged, when it cannot be computed. A search that ended
-    at another optimum leaves bands no noise explains (the campaign trial's truth 4: eq. 17 0.196
-    against 0.076 near the truth), and a precision predicted there does not hold."""
-    from dtid.identification.diagnosis.mismatch import mismatch_map
-
-    selections = [("fit", report.fit)]
-    if report.validation is not None and report.validation.tests:
-        selections.append(("validation", report.validation))
-    try:
-        found = mismatch_map(report.identification.parameters, selections)
-    except (DtidError, ValueError) as error:
-        logger.warning("the fit's adequacy test: %s", error)
-        return None
-    return {
-        "adequate": found.adequate,
-        "global_p_value": found.global_p_value,
-        "bands": len(found.bands),
-    }
 
 
 def _read_json(path: Path) -> dict[str, Any]:
