@@ -118,28 +118,8 @@ def next_round(
     if document is None:
         return Decision(None, "no_plan", "the worker gave no plan for the next round")
     if document.get("plan") is None:
-        agreement = document.get("agreement") or {}
-        if document.get("meets_targets") and agreement.get("agree", True) is False:
-            return Decision(
-                None,
-                "inconsistent",
-                f"the targets are said met, but from the previous round {agreement.get('summary')}"
-                ": one of the two identifications ended at another optimum; the precision does "
-                "not hold (check the fits: dtid diagnose, dtid profile)",
-            )
-        fit = document.get("fit") or {}
-        if document.get("meets_targets") and fit.get("adequate", True) is False:
-            return Decision(
-                None,
-                "inadequate",
-                f"the targets are said met, but the model does not explain the recordings "
-                f"({fit.get('bands')} significant bands, global p = "
-                f"{float(fit.get('global_p_value') or 0.0):.2g}): the search may have ended at "
-                "another optimum, or the model lacks physics (dtid diagnose); the precision does "
-                "not hold",
-            )
         if document.get("meets_targets"):
-            return Decision(None, "targets_met", STOP_REASONS["targets_met"])
+            return _met(document)
         return Decision(None, "no_plan", "the worker's plan holds no next round")
     period = config.test.request_period_s
     try:
@@ -155,6 +135,31 @@ def next_round(
             "s of test time left ([test] max_time_s)",
         )
     return Decision(plan, None, "")
+
+
+def _met(document: Mapping[str, Any]) -> Decision:
+    """``targets_met``, unless the rounds disagree (``inconsistent``) or the model does not
+    explain the recordings (``inadequate``): then the precision said met does not hold."""
+    agreement = document.get("agreement") or {}
+    fit = document.get("fit") or {}
+    if agreement.get("agree", True) is False:
+        stopped = "inconsistent"
+        why = (
+            f"from the previous round {agreement.get('summary')}: one of the two "
+            "identifications ended at another optimum (check the fits: dtid diagnose, dtid profile)"
+        )
+    elif fit.get("adequate", True) is False:
+        stopped = "inadequate"
+        why = (
+            f"the model does not explain the recordings ({fit.get('bands')} significant bands, "
+            f"global p = {float(fit.get('global_p_value') or 0.0):.2g}): the search may have "
+            "ended at another optimum, or the model lacks physics (dtid diagnose)"
+        )
+    else:
+        return Decision(None, "targets_met", STOP_REASONS["targets_met"])
+    return Decision(
+        None, stopped, f"the targets are said met, but {why}; the precision does not hold"
+    )
 
 
 def round_fields(
