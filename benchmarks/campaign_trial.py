@@ -25,7 +25,8 @@ import time
 
 from benchmarks.identification_trial import draw_truth, draw_vehicle
 from benchmarks.plan_trial import relative_errors
-from dtid.acquisition.config import SafetyConfig
+from dtid.acquisition.campaign import next_round
+from dtid.acquisition.config import AcquisitionConfig, SafetyConfig
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.diagnosis.mismatch import adequacy
 from dtid.identification.model.test_setup import MeasuredTest
@@ -133,13 +134,13 @@ def main() -> None:
             flush=True,
         )
         if design is None:
-            stopped = (  # as dtid.acquisition.campaign.next_round decides
-                "inconsistent"
-                if agreed is not None and not agreed.agree
-                else "inadequate"
-                if fit_check is not None and not fit_check["adequate"]
-                else "targets_met"
-            )
+            said_met = {
+                "plan": None,
+                "meets_targets": True,
+                "agreement": agreed.as_dict() if agreed else None,
+                "fit": fit_check,
+            }
+            stopped = str(next_round(said_met, args.max_time - spent, AcquisitionConfig()).stopped)
             break
         if design.test_time_s > args.max_time - spent:
             stopped = "time_budget"
