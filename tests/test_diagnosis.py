@@ -254,3 +254,23 @@ def test_a_concealed_gearbox_drag_is_named_refitted_and_improves_the_held_out_ru
     from dtid.identification.diagnosis.figure import plot_mismatch
 
     assert plot_mismatch(diagnosis, tmp_path / "drag.png").stat().st_size > 10_000
+
+
+def test_a_better_drivetrain_found_beside_a_mechanism_is_not_credited_to_it(selections, reference):
+    """A search that missed (the DMF play 30 % off) against a candidate whose mechanism does nothing (a
+    gearbox drag of 1e-6 N*m*s/rad) but whose drivetrain is the truth: the plain test credits
+    the mechanism with the better drivetrain (p < 0.01, the held-out run improves); re-polished
+    from the candidate's own drivetrain with the drag off, the model before it fits as well, and
+    the candidate is refused."""
+    from dtid.identification.diagnosis.refit import Refit
+    from dtid.simulator.mechanisms import EXTRA_INDEX, kernel_parameters
+
+    missed = reference.replace(eps12=1.3 * reference.eps12)
+    refit = Refit(missed, selections[0][1], selections[1][1], prior=reference)
+    row = kernel_parameters(reference.as_array())
+    row[EXTRA_INDEX["d3"]] = 1e-6
+    plain = refit.test(("gearbox_drag",), row, kernel_parameters(missed.as_array()), k=1)
+    assert plain.accepted and plain.p_value < 1e-6
+    guarded = refit.against_own_null(plain, (), tried=1)
+    assert not guarded.accepted
+    assert guarded.statistic < plain.statistic and guarded.p_value > 0.01

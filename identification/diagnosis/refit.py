@@ -35,7 +35,9 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    chose their optima on), its p-value family-wise over the candidates tested against the same
    model (Sidak). A mechanism is accepted when p < :data:`ACCEPT_P`
    **and** the held-out runs' NRMSE falls below both the model it extends and the identified
-   model's. Candidates are ranked by an information criterion, AIC
+   model's, **and** both hold again against the model it extends re-polished from the
+   candidate's own drivetrain (:meth:`Refit.against_own_null`: a better drivetrain the
+   mechanism's wider search found is not the mechanism's merit). Candidates are ranked by an information criterion, AIC
    in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
    After the first is accepted, the next best candidates are tried on top of it (greedy, at most
    :data:`MAX_MECHANISMS`), each tested against the model before it.
@@ -348,6 +350,37 @@ class Refit:
         unit, value = refine(objective, best, self.settings)
         return extra.parameters(unit[None])[0], value
 
+    def against_own_null(
+        self, candidate: Candidate, current: tuple[str, ...], tried: int
+    ) -> Candidate:
+        """Test a candidate that passed against the model before it once more, against that
+        model re-polished from the candidate's own optimum (its newest mechanism neutral).
+
+        A refit with a mechanism free searches from more starts than the baseline's refit; when
+        the identification missed its optimum, the mechanism's refit can find a better
+        drivetrain and credit the mechanism with it (blind trial case 4: a clean vehicle whose
+        search had missed, an accessory mode accepted at p < 0.01 and held-out NRMSE 0.279 ->
+        0.261). Re-polished from the candidate's drivetrain with the mechanism off, the model
+        before it gets the same drivetrain; the mechanism is accepted only if it passes this test
+        too, and the candidate records the smaller statistic and held-out gain of the two.
+        """
+        newest = BY_NAME[candidate.mechanisms[-1]]
+        start = candidate.row.copy()
+        for spec in newest.parameters:
+            start[EXTRA_INDEX[spec.name]] = spec.neutral
+        extra = Extra(self.base, start, tuple(BY_NAME[m] for m in current))
+        unit, _ = refine(self.objective(extra), extra.unit_of(start), self.settings)
+        null_row = extra.parameters(unit[None])[0]
+        again = self.test(
+            candidate.mechanisms, candidate.row, null_row, len(newest.parameters), tried
+        )
+        stricter = min(candidate, again, key=lambda c: c.statistic)
+        return dataclasses.replace(
+            stricter,
+            validation_gain=min(candidate.validation_gain, again.validation_gain),
+            accepted=again.accepted,
+        )
+
     def intervals(self, candidate: Candidate, points: int) -> dict[str, dict[str, object]]:
         """Profile-likelihood 95 % intervals and verdicts of an accepted candidate's mechanism
         parameters (:func:`dtid.identification.uncertainty.profile.profile`, ``points`` grid
@@ -608,6 +641,10 @@ def diagnose_mechanisms(
             row, _ = refit.refit(extra, ladder)
             k = len(mechanism.parameters)
             round_.append(refit.test((*current, s.mechanism), row, current_row, k, len(pool)))
+        round_ = [
+            c if not c.accepted else refit.against_own_null(c, current, len(pool))
+            for c in round_
+        ]
         tried.extend(round_)
         best = min(round_, key=lambda c: c.criterion)
         if not best.accepted:
