@@ -257,11 +257,11 @@ def test_a_concealed_gearbox_drag_is_named_refitted_and_improves_the_held_out_ru
 
 
 def test_a_better_drivetrain_found_beside_a_mechanism_is_not_credited_to_it(selections, reference):
-    """A search that missed (the DMF play 30 % off) against a candidate whose mechanism does nothing (a
-    gearbox drag of 1e-6 N*m*s/rad) but whose drivetrain is the truth: the plain test credits
-    the mechanism with the better drivetrain (p < 0.01, the held-out run improves); re-polished
-    from the candidate's own drivetrain with the drag off, the model before it fits as well, and
-    the candidate is refused."""
+    """A search that missed (the DMF play 30 % off) against a candidate whose mechanism does
+    nothing (a gearbox drag of 1e-6 N*m*s/rad) but whose drivetrain is the truth: the plain test
+    credits the mechanism with the better drivetrain (p < 0.01, the held-out run improves);
+    re-polished from the candidate's own drivetrain with the drag off, the model before it fits
+    as well, and the candidate is refused."""
     from dtid.identification.diagnosis.refit import Refit
     from dtid.simulator.mechanisms import EXTRA_INDEX, kernel_parameters
 

@@ -37,8 +37,8 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    **and** the held-out runs' NRMSE falls below both the model it extends and the identified
    model's, **and** both hold again against the model it extends re-polished from the
    candidate's own drivetrain (:meth:`Refit.against_own_null`: a better drivetrain the
-   mechanism's wider search found is not the mechanism's merit). Candidates are ranked by an information criterion, AIC
-   in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
+   mechanism's wider search found is not the mechanism's merit). Candidates are ranked by an
+   information criterion, AIC in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
    After the first is accepted, the next best candidates are tried on top of it (greedy, at most
    :data:`MAX_MECHANISMS`), each tested against the model before it.
 """
@@ -642,8 +642,7 @@ def diagnose_mechanisms(
             k = len(mechanism.parameters)
             round_.append(refit.test((*current, s.mechanism), row, current_row, k, len(pool)))
         round_ = [
-            c if not c.accepted else refit.against_own_null(c, current, len(pool))
-            for c in round_
+            c if not c.accepted else refit.against_own_null(c, current, len(pool)) for c in round_
         ]
         tried.extend(round_)
         best = min(round_, key=lambda c: c.criterion)
