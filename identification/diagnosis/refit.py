@@ -38,9 +38,9 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
    model's, **and** both hold again against the model it extends re-polished from the
    candidate's own drivetrain (:meth:`Refit.against_own_null`: a better drivetrain the
    mechanism's wider search found is not the mechanism's merit). Candidates are ranked by an
-   information criterion, AIC in the statistic's units (2 k - lambda: below zero the mechanism pays for its parameters).
-   After the first is accepted, the next best candidates are tried on top of it (greedy, at most
-   :data:`MAX_MECHANISMS`), each tested against the model before it.
+   information criterion, AIC in the statistic's units (2 k - lambda: below zero the mechanism
+   pays for its parameters). After the first is accepted, the next best candidates are tried on
+   top of it (greedy, at most :data:`MAX_MECHANISMS`), each tested against the model before it.
 """
 
 from __future__ import annotations
