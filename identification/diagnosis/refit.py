@@ -358,11 +358,14 @@ class Refit:
 
         A refit with a mechanism free searches from more starts than the baseline's refit; when
         the identification missed its optimum, the mechanism's refit can find a better
-        drivetrain and credit the mechanism with it (blind trial case 4: a clean vehicle whose
-        search had missed, an accessory mode accepted at p < 0.01 and held-out NRMSE 0.279 ->
-        0.261). Re-polished from the candidate's drivetrain with the mechanism off, the model
-        before it gets the same drivetrain; the mechanism is accepted only if it passes this test
-        too, and the candidate records the smaller statistic and held-out gain of the two.
+        drivetrain and credit the mechanism with it (``tests/test_diagnosis.py``). Re-polished
+        from the candidate's drivetrain with the mechanism off, the model before it gets the
+        same drivetrain; the mechanism is accepted only if it passes this test too, and the
+        candidate records the smaller statistic and held-out gain of the two. What it cannot
+        catch: a mechanism that really improves the fit within a wrong basin (the blind trial's
+        clean case 4, an accessory mode in a stiff-DMF basin its search had ended in: 0.209 to
+        0.149 where the truth's basin gives 0.081, a fresh baseline refit from there 0.221);
+        there the search is what must not miss.
         """
         newest = BY_NAME[candidate.mechanisms[-1]]
         start = candidate.row.copy()
