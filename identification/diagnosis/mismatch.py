@@ -300,6 +300,12 @@ def adequacy(report: IdentificationReport) -> dict[str, Any] | None:
     except (DtidError, ValueError) as error:
         logger.warning("the fit's adequacy test: %s", error)
         return None
+    return adequacy_of(found)
+
+
+def adequacy_of(found: MismatchMap) -> dict[str, Any]:
+    """The ``fit`` entry of a campaign's plan from a mismatch map already made (a diagnosis's:
+    the same runs and draws as :func:`adequacy`)."""
     return {
         "adequate": found.adequate,
         "global_p_value": found.global_p_value,

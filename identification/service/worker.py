@@ -61,7 +61,7 @@ from dtid.acquisition.server import bind
 from dtid.acquisition.stream import KINDS, REPLAY_PAGE
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
-from dtid.identification.diagnosis.mismatch import adequacy
+from dtid.identification.diagnosis.mismatch import adequacy, adequacy_of
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
@@ -183,6 +183,8 @@ class _Session:
     before: tuple[dict[str, float], dict[str, float]] | None = None
     """A campaign round's previous round: what it identified and the scatter its plan predicted
     for the runs recorded then (absolute, 1 sigma); None in round 1 or unreadable."""
+    fit: dict[str, Any] | None = None
+    """The diagnosis's adequacy test of the result (``[worker] diagnose``), reused by the plan."""
 
 
 class Worker:
@@ -662,7 +664,7 @@ class Worker:
             self._progress(session, "error", message=str(error))
             return
         stage = "validated" if document["nrmse"]["validation"] else "done"
-        diagnosis_path = None
+        diagnosis_path, session.fit = None, None
         if stage == "validated" and self.options.diagnose:
             files = self._diagnose(session, report, folder)
             written += files
@@ -704,6 +706,7 @@ class Worker:
         from dtid.jsonfile import write_json
 
         diagnosis = diagnose_report(report)
+        session.fit = adequacy_of(diagnosis.mismatch)
         document = diagnosis.as_dict()
         self._publish("diagnosis", {"session": session.id, **document})
         path = folder / "diagnosis.json"
@@ -798,7 +801,7 @@ class Worker:
                 values, sd, report.parameters, plan_scatter(document)
             ).as_dict()
         if campaign is not None:
-            document["fit"] = adequacy(report)
+            document["fit"] = session.fit or adequacy(report)
         if campaign is not None:
             self._campaigns[str(campaign.get("id"))] = (info, list(recommendation.recorded))
         self._publish("plan", {"session": session.id, **document})
