@@ -14,7 +14,9 @@ Per case it records the concealed mechanism, how much it changes |G_DRV| (the la
 over the runs' bins, dB, at the truth: model with and without it on the recorded test), what the
 diagnosis named first, the named mechanism's main parameter against the truth, and the held-out
 NRMSE before and after. The summary gives the issue's figures: among cases whose effect reaches
-1.5 dB, the share named first correctly; clean cases declared adequate; the main parameter
+1.5 dB, the share named first correctly (and how many of them the identification absorbed:
+declared adequate, the mechanism listed as indistinguishable); clean cases declared adequate;
+the main parameter
 within 25 %; the held-out NRMSE's fall where an effect was accepted; and the confusion matrix.
 
     PYTHONPATH=. python benchmarks/diagnosis_trial.py --cases 12 [--first 1] [--clean 0.25]
@@ -153,6 +155,11 @@ def summarise(cases: list[dict[str, object]]) -> dict[str, object]:
         "refused": [(c["case"], c["concealed"]) for c in refused],
         "visible": len(visible),
         "named_first_right": sum(c["named"] == c["concealed"] for c in visible),
+        "visible_adequate": sum(bool(c["adequate"]) for c in visible),
+        "visible_listed_indistinguishable": sum(
+            c["concealed"] in c["indistinguishable"]  # type: ignore[operator]
+            for c in visible
+        ),
         "clean": len(clean),
         "clean_adequate": sum(bool(c["adequate"]) for c in clean),
         "clean_nothing_accepted": sum(not c["named"] for c in clean),
