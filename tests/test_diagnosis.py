@@ -209,6 +209,7 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     diagnosis = diagnose(reference, selections, {"parameters": {}, "nrmse": {}, "objective": 0.0})
     assert diagnosis.adequate and not diagnosis.candidates
     assert {"asymmetric_play", "torque_sensor_gain"} <= set(diagnosis.indistinguishable)
+    assert "cannot tell" in diagnosis.sentence() and "torque_sensor_gain" in diagnosis.sentence()
     visible = {s.mechanism for s in diagnosis.screened if s.detectable(3.0)}
     assert {"progressive_spring", "accessory_mode", "gearbox_drag"} <= visible
 

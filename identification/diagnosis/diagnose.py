@@ -120,11 +120,18 @@ class Diagnosis:
         """The verdict in one sentence."""
         test = self.mismatch
         if self.adequate:
-            return (
+            text = (
                 "The identified model explains these recordings: no band of |G_DRV| differs "
                 f"significantly (family-wise {100 * test.family_error:g} %; the largest "
-                f"deviation has p = {test.global_p_value:.2g})."
+                f"deviation has p = {test.global_p_value:.2g})"
             )
+            hidden = self.indistinguishable
+            if hidden:  # absorbed when present: blind trial case 3 fitted with c12 -58 %
+                text += (
+                    f"; these data cannot tell {', '.join(hidden)} from the drivetrain "
+                    "parameters, which would absorb any of them present"
+                )
+            return text + "."
         first = test.bands[0]
         where = (
             f"|G_{first.frf.upper()}| at {first.amplitude_nm:g} N*m, {first.f_lo_hz:.1f}-"
