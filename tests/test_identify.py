@@ -220,7 +220,9 @@ def test_one_amplitude_reports_stiffness_and_play_as_not_identifiable(
     truth, measured = softer_dmf
     theta = theta_from_parameters(truth)
     fixed = {name: theta[name] for name in THETA_NAMES if name not in ("c12", "eps12", "d12")}
-    budget = SearchSettings(popsize=3, generations=2, polish_evaluations=10, newton_iterations=0)
+    budget = SearchSettings(
+        popsize=3, generations=2, polish_evaluations=10, polish_steps=0, newton_iterations=0
+    )
     one = run_identification(
         [measured],
         reference,
@@ -260,6 +262,7 @@ def test_a_warm_start_keeps_an_earlier_optimum_a_small_search_would_miss(
         polish_evaluations=30,
         polish_starts=1,
         scan_starts=0,
+        polish_steps=0,
         newton_iterations=0,
     )
     cold = identify([measured], par, ident, valid, budget)

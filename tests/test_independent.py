@@ -99,8 +99,11 @@ def test_independent_vehicle(name: str) -> None:
     for test, db_runs in zip(model_tests, measured, strict=True):
         for model, data in zip(model_drv_db(params, test), db_runs, strict=True):
             assert nrmse(data, model)[0] < 0.045
-    # the search: it fits better than the truth, and what it pins down on both vehicles
+    # the search: it reaches the optimum nearest the truth or one that fits better (before
+    # stage 2 ended each polish with Levenberg-Marquardt steps, vehicle_1's search stopped in
+    # the gear coupling's valley at 0.054 for 0.050), and what it pins down on both vehicles
     assert result.objective < report.fit_objective(truth)
+    assert result.objective <= 1.01 * value, (result.objective, value)
     for pinned in ("J_sum", "x1", "x12", "eps12", "d12"):
         found = result.theta[pinned] / true_theta[pinned] - 1
         assert abs(found) <= TARGETS[pinned], f"{pinned} {found:+.3f}"

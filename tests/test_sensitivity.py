@@ -83,7 +83,7 @@ def test_levenberg_marquardt_returns_to_the_truth(linear: tuple) -> None:
     objective, truth = linear
     start = truth + 0.05 * np.array([1, -1, 1, -1, 1])
     value = float(objective(start[None])[0])
-    best = _levenberg_marquardt(objective, start, value, iterations=6)
+    best, _ = _levenberg_marquardt(objective, start, value, iterations=6)
     assert float(objective(best[None])[0]) < 0.01  # from 2.2
     assert np.abs(best - truth).max() < 0.002
 

@@ -128,7 +128,7 @@ def add_search_options(parser: argparse.ArgumentParser) -> None:
         "--polish-evaluations",
         type=int,
         default=defaults.polish_evaluations,
-        help="objective evaluations of each local polish (default: %(default)s)",
+        help="objective evaluations of each Nelder-Mead polish (default: %(default)s)",
     )
     parser.add_argument(
         "--profile-points",
