@@ -205,13 +205,31 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     """At the truth nothing is refitted; the mechanisms no data of this test can show are listed
     as indistinguishable: an asymmetric DMF play (no mean torque loads the DMF in neutral, so
     the asymmetry only shifts the play's centre) and a uniform torque-sensor gain (it scales
-    |G_DRV| as the inertias do)."""
-    diagnosis = diagnose(reference, selections, {"parameters": {}, "nrmse": {}, "objective": 0.0})
+    |G_DRV| as the inertias do), each with what the drivetrain would make of it."""
+    baseline = {"parameters": {}, "nrmse": {"fit": {}, "validation": {}}, "objective": 0.0}
+    diagnosis = diagnose(reference, selections, baseline)
     assert diagnosis.adequate and not diagnosis.candidates
     assert {"asymmetric_play", "torque_sensor_gain"} <= set(diagnosis.indistinguishable)
     assert "cannot tell" in diagnosis.sentence() and "torque_sensor_gain" in diagnosis.sentence()
     visible = {s.mechanism for s in diagnosis.screened if s.detectable(3.0)}
     assert {"progressive_spring", "accessory_mode", "gearbox_drag"} <= visible
+    # what each would cost if present: a sensor reading g_T = 1.15 times the torque lowers
+    # |G_DRV| by that factor, which the drivetrain imitates exactly by scaling: every inertia
+    # and stiffness 15 % larger (the modes and the mass ratios stay) and, as the same torque
+    # then turns it 1/1.15 as far, every free play 13 % smaller (measured: J_sum +14.9 %, c12
+    # +14.6, c23 +15.2, eps12 -13.2, eps23 -12.1; the flat friction and d12 trade instead)
+    absorbed = {entry.mechanism: entry for entry in diagnosis.absorbed}
+    assert set(absorbed) == set(diagnosis.indistinguishable)
+    gain = absorbed["torque_sensor_gain"]
+    assert gain.parameters == {"g_T": 1.15}
+    for name in ("J_sum", "c12", "c23"):
+        assert gain.shift[name] == pytest.approx(0.15, abs=0.015), name
+    for name in ("eps12", "eps23"):
+        assert gain.shift[name] == pytest.approx(1 / 1.15 - 1, abs=0.02), name
+    assert abs(gain.shift["x1"]) < 0.01 and abs(gain.shift["x12"]) < 0.01
+    # an asymmetric play only moves the play's centre: nothing for the drivetrain to imitate
+    assert max(map(abs, absorbed["asymmetric_play"].shift.values())) < 0.02
+    validate(diagnosis.as_dict(), "diagnosis")
 
 
 @pytest.fixture(scope="module")

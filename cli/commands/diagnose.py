@@ -36,6 +36,9 @@ from dtid.simulator.mechanisms import BY_NAME
 from dtid.simulator.parameters import load_parameters, reference_parameters
 from dtid.workflow import identify, measured_tests
 
+SHIFTS_SHOWN = 4
+"""Parameters named, largest change first, for each mechanism the drivetrain would absorb."""
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
@@ -124,6 +127,14 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
         print(
             "indistinguishable on these data (neither detected nor excluded): "
             + ", ".join(diagnosis.indistinguishable)
+        )
+    for entry in diagnosis.absorbed:
+        values = ", ".join(f"{k} = {v:.4g}" for k, v in entry.parameters.items())
+        largest = sorted(entry.shift.items(), key=lambda item: -abs(item[1]))[:SHIFTS_SHOWN]
+        shifts = ", ".join(f"{name} {100 * value:+.1f} %" for name, value in largest)
+        print(
+            f"if present, {entry.mechanism} ({values}) would be absorbed as {shifts} "
+            f"(eq. 17 {entry.objective:.3f} of the imitation)"
         )
     for hint in diagnosis.hints:
         edge = " (grid edge)" if hint.at_edge else ""

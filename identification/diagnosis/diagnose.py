@@ -12,6 +12,7 @@ hints (docs/diagnosis.md).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ from dtid.identification.diagnosis.hints import EffectiveValue, effective_values
 from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
+    Absorbed,
     Candidate,
     Refit,
     Screened,
@@ -37,7 +39,7 @@ from dtid.identification.pipeline import (
     validation_runs,
     with_variation,
 )
-from dtid.simulator.mechanisms import BY_NAME, MECHANISMS
+from dtid.simulator.mechanisms import BY_NAME, MECHANISMS, kernel_parameters
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
 
@@ -69,6 +71,9 @@ class Diagnosis:
     intervals
         Profile-likelihood intervals of the accepted mechanisms' parameters (None when not
         computed).
+    absorbed
+        For each indistinguishable mechanism, what the drivetrain parameters would make of it
+        at the top of its typical range (:meth:`Refit.absorbed`).
     """
 
     baseline: Mapping[str, Any]
@@ -81,6 +86,7 @@ class Diagnosis:
     accepted: tuple[Candidate, ...] = ()
     after: MismatchMap | None = None
     intervals: Mapping[str, Mapping[str, object]] | None = None
+    absorbed: tuple[Absorbed, ...] = ()
 
     @property
     def mechanisms(self) -> tuple[str, ...]:
@@ -218,6 +224,7 @@ class Diagnosis:
         common = {
             "explanation": self.sentence(),
             "indistinguishable": list(self.indistinguishable),
+            "absorbed": [entry.as_dict() for entry in self.absorbed],
         }
         if not self.accepted:
             return {
@@ -345,18 +352,21 @@ def diagnose(
             if profile_points > 0:
                 intervals = refit.intervals(accepted[-1], profile_points)
     hints = () if found.adequate or accepted else tuple(effective_values(parameters, selections))
-    return Diagnosis(
+    diagnosis = Diagnosis(
         baseline,
         parameters,
         found,
         hints,
-        time.perf_counter() - began,
+        0.0,
         tuple(screened),
         tuple(candidates),
         tuple(accepted),
         after,
         intervals,
     )
+    final = accepted[-1].row if accepted else kernel_parameters(parameters.as_array())
+    absorbed = tuple(refit.absorbed(BY_NAME[m], final) for m in diagnosis.indistinguishable)
+    return dataclasses.replace(diagnosis, absorbed=absorbed, seconds=time.perf_counter() - began)
 
 
 def diagnose_report(

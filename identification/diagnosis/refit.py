@@ -102,6 +102,42 @@ start, the other half spans the box (a Latin hypercube): a mechanism the identif
 its parameters around may need them far from the identified values."""
 REFIT_SETTINGS = SearchSettings(final_evaluations=300, polish_evaluations=300)
 """Budget of each refit's Nelder-Mead and Levenberg-Marquardt stages."""
+ABSORB_SETTINGS = SearchSettings(final_evaluations=100, polish_evaluations=100)
+"""Budget of :meth:`Refit.absorbed`'s polish (Nelder-Mead, then Levenberg-Marquardt steps: the
+curves it fits are the model's own, smooth, and the steps do most of the work)."""
+
+
+@dataclass(frozen=True)
+class Absorbed:
+    """What the drivetrain parameters make of a mechanism the data cannot tell from them.
+
+    Attributes
+    ----------
+    mechanism
+        Its name.
+    parameters
+        The mechanism's parameters it was present with, SI units (the main one at the top of
+        its typical range, the others in the middle of theirs).
+    shift
+        Relative change of each setup-4 parameter (:data:`THETA_NAMES`) when the model without
+        the mechanism is fitted to the model's curves with it.
+    objective
+        Eq. (17) of that fit: how closely the drivetrain imitates the mechanism (0: exactly).
+    """
+
+    mechanism: str
+    parameters: dict[str, float]
+    shift: dict[str, float]
+    objective: float
+
+    def as_dict(self) -> dict[str, object]:
+        """The JSON entry (``verdict.absorbed``)."""
+        return {
+            "mechanism": self.mechanism,
+            "parameters": self.parameters,
+            "shift_percent": {name: 100 * value for name, value in self.shift.items()},
+            "objective": self.objective,
+        }
 
 
 @dataclass(frozen=True)
@@ -382,6 +418,32 @@ class Refit:
             stricter,
             validation_gain=min(candidate.validation_gain, again.validation_gain),
             accepted=again.accepted,
+        )
+
+    def absorbed(self, mechanism: Mechanism, row: np.ndarray) -> Absorbed:
+        """What the drivetrain parameters would make of ``mechanism`` if it were present.
+
+        The model at ``row`` with the mechanism added at the top of its typical range gives
+        the identifying runs' |G_DRV| (its own realizations, so that without the mechanism the
+        curves are matched exactly); the model without it is fitted to those curves from
+        ``row`` (Nelder-Mead, Levenberg-Marquardt: :data:`ABSORB_SETTINGS`). A local estimate
+        of the bias a present mechanism causes: an identification searches the whole box and
+        can end further away (the blind trial's quadratic damping: c12 -58 %, docs/
+        diagnosis.md).
+        """
+        present = _with(row, mechanism, mechanism.main.typical[1])
+        extra = Extra(self.base, row, ())
+        curves = iter(self.curves(present[None]))
+        measured = [[next(curves)[0] for _ in runs] for runs in self.fit.runs]
+        objective = Objective(extra, self.objective(extra).tests, measured)  # type: ignore[arg-type]
+        unit, value = refine(objective, extra.unit_of(row), ABSORB_SETTINGS)
+        before = theta_of(row)
+        after = theta_of(extra.parameters(unit[None])[0])
+        return Absorbed(
+            mechanism.name,
+            {spec.name: float(present[EXTRA_INDEX[spec.name]]) for spec in mechanism.parameters},
+            {n: a / b - 1 for n, a, b in zip(THETA_NAMES, after, before, strict=True)},
+            value,
         )
 
     def intervals(self, candidate: Candidate, points: int) -> dict[str, dict[str, object]]:
