@@ -11,14 +11,15 @@ engine data from ``truth.toml``'s ``[engine]`` table, the default box and search
   10 N*m runs at 0.10-0.13); on vehicle_1, whose gearbox side is 5 % of the inertia, within
   twice the target on the gear coupling's stiffness (there the optimum nearest the truth lies
   at c23 +5.0 %, inside a profile interval of +-20 %: these recordings do not pin it);
-* the search fits better than the truth, and finds the total inertia, the mass ratios, the DMF
-  play and the DMF damping within their targets.
+* the search fits better than the truth, ends no higher than 1 % above the optimum nearest the
+  truth, and finds the total inertia, the mass ratios, the DMF play and the DMF damping within
+  their targets.
 
 What is not asserted, because it does not hold on both: the stiffnesses, J3, the gear
-coupling's damping and play, and the friction. vehicle_2 meets every target but the gear play
-and the friction; on vehicle_1 the gear coupling trades along its mode's frequency (2026-11-26:
-J3 +35 %, c23 +23 %, d23 +87 %, eps23 -28 %; the profiles' verdict on d23 and eps23 is `no`)
-and the found set fits the recordings better than the truth; see docs/accuracy.md. The test is
+coupling's damping and play, and the friction. The gear coupling trades along its mode's
+frequency, and where a search ends in that valley depends on its path (2026-11-27, files in
+sorted order: vehicle_1 c23 +12 %, d23 +9 %, eps23 -1 %; vehicle_2 c23 +2 %, the friction
++42 %; both below the optimum nearest the truth); see docs/accuracy.md. The test is
 skipped, and says so, where the recordings are not beside the repository.
 """
 

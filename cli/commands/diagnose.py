@@ -38,6 +38,8 @@ from dtid.workflow import identify, measured_tests
 
 SHIFTS_SHOWN = 4
 """Parameters named, largest change first, for each mechanism the drivetrain would absorb."""
+SHIFT_SHOWN = 0.005
+"""Smallest relative change named."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -130,10 +132,15 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
         )
     for entry in diagnosis.absorbed:
         values = ", ".join(f"{k} = {v:.4g}" for k, v in entry.parameters.items())
-        largest = sorted(entry.shift.items(), key=lambda item: -abs(item[1]))[:SHIFTS_SHOWN]
-        shifts = ", ".join(f"{name} {100 * value:+.1f} %" for name, value in largest)
+        moved = [item for item in entry.shift.items() if abs(item[1]) >= SHIFT_SHOWN]
+        largest = sorted(moved, key=lambda item: -abs(item[1]))[:SHIFTS_SHOWN]
+        shifts = (
+            "as " + ", ".join(f"{name} {100 * value:+.1f} %" for name, value in largest)
+            if largest
+            else f"leaving every drivetrain parameter within {100 * SHIFT_SHOWN:g} %"
+        )
         print(
-            f"if present, {entry.mechanism} ({values}) would be absorbed as {shifts} "
+            f"if present, {entry.mechanism} ({values}) would be absorbed {shifts} "
             f"(eq. 17 {entry.objective:.3f} of the imitation)"
         )
     for hint in diagnosis.hints:
