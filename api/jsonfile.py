@@ -3,9 +3,17 @@
 from __future__ import annotations
 
 import json
+import math
+from collections.abc import Iterable
 from pathlib import Path
 
 from dtid.errors import ConfigError, RecordingError
+
+
+def finite(values: Iterable[float]) -> list[float | None]:
+    """Numbers as JSON carries them: None where a value is not finite (a profile point whose
+    model could not idle has an infinite statistic; strict JSON has no infinity)."""
+    return [float(v) if math.isfinite(v) else None for v in values]
 
 
 def write_json(path: Path, document: object) -> None:

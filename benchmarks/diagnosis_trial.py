@@ -114,6 +114,7 @@ def run_case(index: int, clean: float) -> dict[str, object]:
         "named": named,
         "accepted": list(diagnosis.mechanisms),
         "indistinguishable": list(diagnosis.indistinguishable),
+        "absorbed": [entry.as_dict() for entry in diagnosis.absorbed],
         "bands": len(diagnosis.mismatch.bands),
         "global_p": diagnosis.mismatch.global_p_value,
         "identify_s": identified_s,

@@ -424,7 +424,7 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
         shaped = {
             name: SimpleNamespace(
                 values=np.asarray(p["values"]),
-                objective=np.asarray(p["objective"]),
+                objective=np.asarray(p["objective"], dtype=float),  # null: could not idle
                 verdict=verdicts.get(name, ""),
             )
             for name, p in profiles.items()

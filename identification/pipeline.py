@@ -51,7 +51,7 @@ from dtid.identification.search.parameterization import (
 )
 from dtid.identification.search.start_values import start_thetas
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
-from dtid.jsonfile import write_json
+from dtid.jsonfile import finite, write_json
 from dtid.simulator.parameters import UNITS, DrivetrainParameters
 
 if TYPE_CHECKING:
@@ -356,9 +356,9 @@ class IdentificationReport:
             "profiles": {
                 name: {
                     "values": prof.values.tolist(),
-                    "objective": prof.objective.tolist(),
-                    "statistic": prof.statistic.tolist(),
-                    "margin": prof.margin.tolist(),
+                    "objective": finite(prof.objective),
+                    "statistic": finite(prof.statistic),
+                    "margin": finite(prof.margin),
                 }
                 for name, prof in self.profiles.items()
             },

@@ -25,12 +25,49 @@ from dtid.identification.uncertainty.profile import (
     BIN_CORRELATION,
     LOCAL_BINS,
     THRESHOLD,
+    Profile,
     _interval_and_verdict,
     profile,
     statistic,
 )
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
+
+
+def test_a_point_whose_model_could_not_idle_is_written_as_null(tmp_path) -> None:
+    """A friction so large that the model stalls gives an infinite statistic at that point;
+    the profile and the identification JSON still write (strict JSON: null there), and
+    `dtid report` draws the profile from it (vehicle_2 of ../shared/independent with
+    `--profile-points 7` lost its whole identification to this once)."""
+    import json
+
+    from dtid.identification.html_report import _identification_section
+    from dtid.jsonfile import write_json
+
+    inf = float("inf")
+    prof = Profile(
+        "Tc12",
+        np.array([0.0, 0.5, 1.0, 5.0]),
+        np.array([0.07, 0.064, 0.07, inf]),
+        np.array([1.0, 0.0, 1.2, inf]),
+        np.array([0.2, 0.0, 0.2, inf]),
+        (None, None),
+        "no",
+    )
+    document = prof.as_dict()
+    assert document["statistic"] == [1.0, 0.0, 1.2, None]
+    write_json(tmp_path / "profile.json", document)
+    written = json.loads((tmp_path / "profile.json").read_text())
+    assert written["objective"][-1] is None
+    section = _identification_section(
+        {
+            "parameters": {"Tc12": 0.5},
+            "identifiable": {"Tc12": "no"},
+            "profiles": {"Tc12": written},
+        },
+        [],
+    )
+    assert "id='fig-profiles'" in section
 
 
 def test_interval_from_threshold_crossings() -> None:

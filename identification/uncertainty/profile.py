@@ -75,6 +75,7 @@ from dtid.identification.search.identify import Objective
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import Parameterization
 from dtid.identification.search.sensitivity import compensation
+from dtid.jsonfile import finite
 
 CONFIDENCE = 0.95
 THRESHOLD = float(stats.chi2.ppf(CONFIDENCE, df=1))
@@ -172,9 +173,9 @@ class Profile:
         """JSON-ready profile."""
         return {
             "values": self.values.tolist(),
-            "objective": self.objective.tolist(),
-            "statistic": self.statistic.tolist(),
-            "margin": self.margin.tolist(),
+            "objective": finite(self.objective),
+            "statistic": finite(self.statistic),
+            "margin": finite(self.margin),
             "interval": {"lower": self.interval[0], "upper": self.interval[1]},
             "verdict": self.verdict,
             "note": self.note,
