@@ -293,3 +293,18 @@ def test_a_better_drivetrain_found_beside_a_mechanism_is_not_credited_to_it(sele
     guarded = refit.against_own_null(plain, (), tried=1)
     assert not guarded.accepted
     assert guarded.statistic < plain.statistic and guarded.p_value > 0.01
+
+
+def test_a_parameter_identified_at_zero_has_no_relative_shift(selections, reference):
+    """A friction identified at its bound 0 leaves the absorbed mechanism's relative shifts
+    without it (the blind trial's case 3 divided by it), the others as usual."""
+    from dtid.identification.diagnosis.refit import Refit
+    from dtid.simulator.mechanisms import BY_NAME, kernel_parameters
+
+    frictionless = reference.replace(Tc12=0.0)
+    refit = Refit(frictionless, dict(selections)["fit"])
+    entry = refit.absorbed(
+        BY_NAME["torque_sensor_gain"], kernel_parameters(frictionless.as_array())
+    )
+    assert "Tc12" not in entry.shift
+    assert entry.shift["J_sum"] == pytest.approx(0.15, abs=0.015)

@@ -120,7 +120,8 @@ class Absorbed:
         its typical range, the others in the middle of theirs).
     shift
         Relative change of each setup-4 parameter (:data:`THETA_NAMES`) when the model without
-        the mechanism is fitted to the model's curves with it.
+        the mechanism is fitted to the model's curves with it; a parameter identified at 0 (a
+        friction at its bound) has no relative change and is left out.
     objective
         Eq. (17) of that fit: how closely the drivetrain imitates the mechanism (0: exactly).
     """
@@ -442,7 +443,7 @@ class Refit:
         return Absorbed(
             mechanism.name,
             {spec.name: float(present[EXTRA_INDEX[spec.name]]) for spec in mechanism.parameters},
-            {n: a / b - 1 for n, a, b in zip(THETA_NAMES, after, before, strict=True)},
+            {n: a / b - 1 for n, a, b in zip(THETA_NAMES, after, before, strict=True) if b},
             value,
         )
 
