@@ -10,10 +10,15 @@ from pathlib import Path
 from dtid.errors import ConfigError, RecordingError
 
 
+def json_number(value: float) -> float | None:
+    """A number as strict JSON carries it: None where it is not finite (NaN, infinity)."""
+    return float(value) if math.isfinite(value) else None
+
+
 def finite(values: Iterable[float]) -> list[float | None]:
-    """Numbers as JSON carries them: None where a value is not finite (a profile point whose
-    model could not idle has an infinite statistic; strict JSON has no infinity)."""
-    return [float(v) if math.isfinite(v) else None for v in values]
+    """Numbers as strict JSON carries them (:func:`json_number`): a profile point whose model
+    could not idle has an infinite statistic, written as None."""
+    return [json_number(v) for v in values]
 
 
 def write_json(path: Path, document: object) -> None:

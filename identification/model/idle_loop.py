@@ -54,6 +54,7 @@ import numpy as np
 from dtid.errors import AnalysisError
 from dtid.identification.model.combustion import variation_and_noise
 from dtid.identification.samples.testdata import Series, TestData
+from dtid.jsonfile import json_number
 from dtid.simulator.angle_grid import RPM_PER_RAD_S
 from dtid.simulator.controller import IdleController
 
@@ -201,8 +202,8 @@ class IdleLoop:
             "latch_events": self.latch_samples,
             "latch_gain": self.gain,
             "latch_residual_nm": self.residual_nm,
-            "combustion_variation": _finite(self.combustion_variation),
-            "torque_noise_nm": _finite(self.torque_noise_nm),
+            "combustion_variation": json_number(self.combustion_variation),
+            "torque_noise_nm": json_number(self.torque_noise_nm),
             "tracking_bandwidth_hz": TRACK_BANDWIDTH_HZ,
             "tracking_kp_nm_per_rpm": controller.kp_nm_per_rpm,
             "tracking_ki_nm_per_rpm_s": controller.ki_nm_per_rpm_s,
@@ -272,11 +273,6 @@ def latch(request: np.ndarray, strokes: np.ndarray, torque: np.ndarray) -> tuple
         if residual < best[2]:
             best = (lag, gain, residual)
     return best
-
-
-def _finite(value: float) -> float | None:
-    """A JSON number, or None for NaN."""
-    return value if np.isfinite(value) else None
 
 
 def _event_grid(speed: Series) -> tuple[np.ndarray, np.ndarray]:

@@ -383,12 +383,12 @@ def identify(
             for member in starts_2
         ]
         candidates = np.array([member for member, _ in polished])
-        ranked = (candidates, objective(candidates))  # on all realizations
+        best = candidates[int(np.argmin(objective(candidates)))]  # ranked on all realizations
         stages["polish"].count(objective)
         stages["final"], stages["newton"] = objective.replacing(), objective.replacing()
         best, value = _polish(
             stages["final"],
-            ranked[0][int(np.argmin(ranked[1]))],
+            best,
             min(settings.final_evaluations, settings.polish_evaluations),
             settings.final_step,
             progress,

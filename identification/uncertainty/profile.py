@@ -179,7 +179,7 @@ class Profile:
             "interval": {"lower": self.interval[0], "upper": self.interval[1]},
             "verdict": self.verdict,
             "note": self.note,
-            "rise": [rise if np.isfinite(rise) else None for rise in self.rise],
+            "rise": finite(self.rise),
         }
 
 
