@@ -9,15 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import optimize
 
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import TestData, from_simulation
 from dtid.identification.search.identify import (
     Objective,
-    _levenberg_marquardt,
     confirmed,
     engine_gain,
+    levenberg_marquardt,
     split_runs,
 )
 from dtid.identification.search.parameterization import (
@@ -83,9 +84,39 @@ def test_levenberg_marquardt_returns_to_the_truth(linear: tuple) -> None:
     objective, truth = linear
     start = truth + 0.05 * np.array([1, -1, 1, -1, 1])
     value = float(objective(start[None])[0])
-    best, _ = _levenberg_marquardt(objective, start, value, iterations=6)
+    best, _ = levenberg_marquardt(objective, start, value, iterations=6)
     assert float(objective(best[None])[0]) < 0.01  # from 2.2
     assert np.abs(best - truth).max() < 0.002
+
+
+def test_levenberg_marquardt_keeps_a_held_parameter_and_finds_the_others_conditional_optimum(
+    linear: tuple,
+) -> None:
+    """Holding parameter 1 at 0.03 off its truth, the steps leave it there and move the others to
+    the conditional optimum of eq. (17) with it held, as scipy's Nelder-Mead run to a tight
+    tolerance finds it independently."""
+    objective, truth = linear
+    held = 1
+    others = [i for i in range(len(truth)) if i != held]
+    start = truth + np.array([0.04, 0.03, -0.04, 0.04, -0.04])
+
+    def with_others(rest: np.ndarray) -> np.ndarray:
+        unit = start.copy()
+        unit[others] = rest
+        return unit
+
+    value = float(objective(start[None])[0])
+    best, reached = levenberg_marquardt(objective, start, value, iterations=8, held=held)
+    assert best[held] == start[held]
+    reference = optimize.minimize(
+        lambda rest: float(objective(with_others(rest)[None])[0]),
+        truth[others],
+        method="Nelder-Mead",
+        options={"xatol": 1e-6, "fatol": 1e-9, "maxfev": 4000},
+    )
+    assert reached < value
+    assert reached < 1.001 * reference.fun
+    assert np.abs(best[others] - reference.x).max() < 0.001
 
 
 def test_a_step_must_hold_on_fresh_draws(

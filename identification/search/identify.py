@@ -375,7 +375,7 @@ def identify(
         starts_2 += _gear_scan(stages["global"], starts_2[0], settings.scan_starts)
         starts_2 += [_unit_start(coordinates, start) for start in (*starts, *warm_starts)]
         polished = [
-            _levenberg_marquardt(
+            levenberg_marquardt(
                 stages["polish"],
                 *_polish(stages["polish"], member, settings.polish_evaluations, step, progress),
                 settings.polish_steps,
@@ -393,7 +393,7 @@ def identify(
             settings.final_step,
             progress,
         )
-        best, _ = _levenberg_marquardt(stages["newton"], best, value, settings.newton_iterations)
+        best, _ = levenberg_marquardt(stages["newton"], best, value, settings.newton_iterations)
     stages.setdefault("final", objective)
     params = coordinates.parameters(best[None])
     fit = _nrmse_by_run(tests, identify_runs, params)
@@ -435,7 +435,7 @@ def refine(
     settings = settings or SearchSettings()
     evaluations = min(settings.final_evaluations, settings.polish_evaluations)
     best, value = _polish(objective, start, evaluations, settings.final_step, None)
-    return _levenberg_marquardt(objective, best, value, settings.newton_iterations)
+    return levenberg_marquardt(objective, best, value, settings.newton_iterations)
 
 
 MIN_POPULATION = 5
@@ -574,8 +574,12 @@ CONFIRM_QUANTILE = float(stats.t.ppf(0.95, len(CONFIRM_SEEDS) - 1))
 """Standard errors by which the mean improvement on the fresh draws must exceed zero (2.35)."""
 
 
-def _levenberg_marquardt(
-    objective: Objective, start: np.ndarray, value: float, iterations: int
+def levenberg_marquardt(
+    objective: Objective,
+    start: np.ndarray,
+    value: float,
+    iterations: int,
+    held: int | None = None,
 ) -> tuple[np.ndarray, float]:
     """Stage 4: Levenberg-Marquardt steps on eq. (17)'s weighted residuals.
 
@@ -593,6 +597,9 @@ def _levenberg_marquardt(
         Where to start (normalised free values) and eq. (17) there.
     iterations
         Most steps.
+    held
+        Index of a free parameter that stays where it is (a profile's re-optimisation,
+        :mod:`dtid.identification.uncertainty.profile`); None: all move.
 
     Returns
     -------
@@ -600,19 +607,19 @@ def _levenberg_marquardt(
         The normalised free values reached and eq. (17) there.
     """
     best = start
+    moving = [i for i in range(len(start)) if i != held]
     for _ in range(iterations):
         jac, residual = jacobian(objective, best)
+        jac = jac[:, moving]
         if not (np.isfinite(jac).all() and np.isfinite(residual).all()):
             break
         normal = jac.T @ jac
         gradient = jac.T @ residual
-        scale = np.diag(np.diag(normal)) + 1e-12 * np.eye(len(best))
-        candidates = np.array(
-            [
-                np.clip(best - np.linalg.solve(normal + damping * scale, gradient), 0.0, 1.0)
-                for damping in LM_DAMPINGS
-            ]
-        )
+        scale = np.diag(np.diag(normal)) + 1e-12 * np.eye(len(moving))
+        candidates = np.repeat(best[None], len(LM_DAMPINGS), axis=0)
+        for row, damping in enumerate(LM_DAMPINGS):
+            step = np.linalg.solve(normal + damping * scale, gradient)
+            candidates[row, moving] = np.clip(best[moving] - step, 0.0, 1.0)
         values = objective(candidates)
         choice = candidates[int(np.argmin(values))]
         if values.min() >= value or not confirmed(objective, best, choice):

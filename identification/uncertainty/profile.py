@@ -71,7 +71,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from dtid.identification.model.response import model_drv_db
-from dtid.identification.search.identify import Objective
+from dtid.identification.search.identify import Objective, levenberg_marquardt
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import Parameterization
 from dtid.identification.search.sensitivity import compensation
@@ -341,6 +341,7 @@ def profile(
     seed: int = 0,
     refine: int = 4,
     search_objective: Objective | None = None,
+    steps: int = 4,
 ) -> Profile:
     """Profile one free parameter around an identified optimum.
 
@@ -366,6 +367,9 @@ def profile(
     search_objective
         A cheaper version of ``objective`` (fewer realizations) for the differential evolution
         of each re-optimisation; the polish and the profile's values use ``objective``.
+    steps
+        Most Levenberg-Marquardt steps after each re-optimisation's Nelder-Mead polish, the held
+        parameter fixed (:func:`dtid.identification.search.identify.levenberg_marquardt`).
     """
     par: Parameterization = objective.parameterization
     free = list(par.free)
@@ -414,7 +418,10 @@ def profile(
                 bounds=[(0.0, 1.0)] * len(others),
                 options={"maxfev": polish_evaluations},
             )
-            rest = polished.x  # never worse than its start, result.x
+            unit, _ = levenberg_marquardt(
+                objective, fixed(polished.x[None])[0], float(polished.fun), steps, held=k
+            )
+            rest = unit[others]  # never worse than the polish's, never worse than its start
         return (*_evaluate(objective, measured_db, fixed(rest[None])), rest)
 
     stochastic = any(t.combustion_variation > 0 for t in objective.tests)
