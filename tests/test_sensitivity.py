@@ -78,6 +78,33 @@ def test_compensation_undoes_most_of_a_change(linear: tuple) -> None:
     assert ratios.min() < 0.5  # the mass ratio and stiffnesses trade against each other
 
 
+class _CannotIdleAbove:
+    """A linear model of two parameters whose runs fail (NaN, the model could not idle) where the
+    first parameter exceeds ``edge``: as at a profile's grid end."""
+
+    def __init__(self, edge: float) -> None:
+        self.edge = edge
+        self.measured_db = [[np.linspace(0.0, 1.0, 8)]]
+
+    def residuals(self, unit: np.ndarray) -> np.ndarray:
+        if not np.isfinite(unit).all():  # as the simulator's step count refuses them
+            raise ValueError("cannot simulate NaN parameters")
+        rows = np.outer(unit[:, 0], np.ones(8)) + np.outer(unit[:, 1], np.linspace(0, 1, 8))
+        rows[unit[:, 0] > self.edge] = np.nan
+        return rows
+
+
+def test_jacobian_where_a_step_cannot_idle_is_nan_not_an_error() -> None:
+    """At the box's edge of a parameter whose model fails beyond it, the Jacobian says so with
+    NaN (the steps cannot be sized from NaN sensitivities); inside, it is the linear model's."""
+    unit = np.array([0.5, 0.5])
+    jac, _ = jacobian(_CannotIdleAbove(0.505), unit)  # type: ignore[arg-type]
+    assert np.isnan(jac).any()
+    jac, residual = jacobian(_CannotIdleAbove(2.0), unit)  # type: ignore[arg-type]
+    assert np.allclose(jac, np.column_stack([np.ones(8), np.linspace(0, 1, 8)]))
+    assert np.allclose(residual, 0.5 + 0.5 * np.linspace(0, 1, 8))
+
+
 def test_levenberg_marquardt_returns_to_the_truth(linear: tuple) -> None:
     """From 0.05 of the box off in every parameter, a few steps come back to the truth (a
     smooth least-squares problem: Gauss-Newton converges fast)."""

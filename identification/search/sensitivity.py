@@ -66,6 +66,8 @@ def jacobian(objective: Objective, unit: np.ndarray) -> tuple[np.ndarray, np.nda
         down = np.clip(unit - np.diag(steps), 0.0, 1.0)
         rows = objective.residuals(np.vstack([up, down, unit[None]]))
         result = (rows[:n_free] - rows[n_free : 2 * n_free]).T / np.diag(up - down)
+        if not np.isfinite(result).all():
+            break  # some step could not idle: no size to measure, the caller sees the NaN
         rms_db = np.sqrt(np.mean((result * spreads[:, None]) ** 2, axis=0))
         steps = np.clip(SENSITIVITY_DB / np.maximum(rms_db, 1e-9), *STEP_RANGE)
     return result, rows[-1]

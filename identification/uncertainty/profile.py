@@ -2,7 +2,8 @@
 
 For one parameter, a grid of fixed values across its bounds (seven by default, as in Fig. 5);
 at each, all other free parameters are re-optimised (a small differential evolution seeded with
-the neighbouring point's solution, the optimum and random points, then Nelder-Mead). The grid is
+the neighbouring point's solution, the optimum and random points, then Nelder-Mead, then
+Levenberg-Marquardt steps with the parameter held, as the search's stages 2 and 4). The grid is
 walked outward from the optimum on each side, so that each point starts from its neighbour's
 solution (continuation): where the others must move far to compensate, as J_sum, c, d and K do
 together in setup 1, a start at the optimum would miss it. The profile is the best objective
