@@ -70,6 +70,22 @@ def test_a_point_whose_model_could_not_idle_is_written_as_null(tmp_path) -> None
     assert "id='fig-profiles'" in section
 
 
+def test_a_side_of_bisection_points_only_is_judged_with_its_bound() -> None:
+    """The right side holds only the bisection's points (0.9-0.95, 0.007 above the minimum)
+    and the bound (0.035 up): the climb counts the bound, so the profile is not flat there; where
+    the same values are grid points, the bound is left out and the side is flat."""
+    values = np.array([0.0, 0.25, 0.5, 0.75, 0.88, 0.9, 0.925, 0.95, 1.0])
+    objective = np.array([3.0, 0.8, 0.15, 0.06, 0.053, 0.054, 0.056, 0.060, 0.088])
+    stat = np.array([1e5, 2e4, 400.0, 20.0, 0.0, 0.1, 3.0, 14.0, 90.0])
+    args = ("x12", values, objective, stat, np.zeros(9), (0.76, 0.94), "practical")
+    bisected = Profile(*args, on_grid=np.array([1, 1, 1, 1, 0, 0, 0, 0, 1], bool))
+    assert bisected.rise[1] == pytest.approx(0.035)
+    assert not bisected.flat
+    gridded = Profile(*args)
+    assert gridded.rise[1] == pytest.approx(0.007)
+    assert gridded.flat
+
+
 def test_interval_from_threshold_crossings() -> None:
     values = np.linspace(0, 6, 7)
     stat = np.array([9.0, 4.0, 1.0, 0.0, 1.0, 2.0, 3.0])

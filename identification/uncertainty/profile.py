@@ -66,7 +66,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import optimize, stats
@@ -134,6 +134,9 @@ class Profile:
         ``practical``, ``structural`` or ``no`` (see the module notes).
     note
         Why the verdict is not the profile's own (:func:`with_structure`); empty when it is.
+    on_grid
+        Which of ``values`` are points of the evenly spaced grid (the others locate the
+        interval's ends or are the optimum); None: all.
     """
 
     name: str
@@ -144,6 +147,7 @@ class Profile:
     interval: tuple[float | None, float | None]
     verdict: str
     note: str = ""
+    on_grid: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def rise(self) -> tuple[float, float]:
@@ -151,14 +155,21 @@ class Profile:
 
         (left, right): the largest objective below and above the minimising value, less the
         minimum, in NRMSE units, over the values strictly inside the bounds (at a bound the
-        compensating parameters may run into theirs, which the paper excludes too); a side
-        with no value inside the bounds counts its bound, and a side with no value at all (the
-        minimum at a bound) is NaN. ``right`` is the side of larger values.
+        compensating parameters may run into theirs, which the paper excludes too). A side
+        with no grid point strictly inside counts its bound as well: the points there, if any,
+        are the bisection's, between the minimum and the threshold crossing, and show only the
+        start of the climb (with five points, a mass ratio whose statistic reached 14 on such a
+        side, its objective only 0.007 above the minimum, was called flat; the bound was 0.035
+        up). A side with no value at all (the minimum at a bound) is NaN. ``right`` is the side
+        of larger values.
         """
         n, best = len(self.objective), int(np.argmin(self.objective))
+        on_grid = np.ones(n, bool) if self.on_grid is None else self.on_grid
 
         def side(indices: range) -> float:
-            inside = [i for i in indices if 0 < i < n - 1] or list(indices)
+            inside = [i for i in indices if 0 < i < n - 1]
+            if not any(on_grid[i] for i in inside):
+                inside = list(indices)
             if not inside:
                 return float("nan")
             return float(self.objective[inside].max() - self.objective[best])
@@ -496,10 +507,11 @@ def profile(
     interval, verdict = _interval_and_verdict(
         values, stat - margin, lowest + minimum() * (highest - lowest)
     )
-    result = Profile(name, values, best_objective, stat, margin, interval, verdict)
+    on_grid = np.isin(grid_unit, grid)
+    result = Profile(name, values, best_objective, stat, margin, interval, verdict, "", on_grid)
     climbs = max((rise for rise in result.rise if np.isfinite(rise)), default=0.0)
     if result.flat or (stochastic and climbs < NOISY_FLAT_RISE):
-        return Profile(name, values, best_objective, stat, margin, (None, None), "no")
+        return dataclasses.replace(result, interval=(None, None), verdict="no")
     return result
 
 
