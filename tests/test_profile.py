@@ -28,6 +28,7 @@ from dtid.identification.uncertainty.profile import (
     Profile,
     _interval_and_verdict,
     profile,
+    smoothed,
     statistic,
 )
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
@@ -84,6 +85,32 @@ def test_a_side_of_bisection_points_only_is_judged_with_its_bound() -> None:
     gridded = Profile(*args)
     assert gridded.rise[1] == pytest.approx(0.007)
     assert gridded.flat
+
+
+def test_a_point_stuck_off_its_valley_takes_a_neighbours_solution_moved_along_it() -> None:
+    """A curved valley: the other parameter's best value at u is r*(u) = u + u^2, and its
+    slope at the optimum (u = 0.5) is 2. The point at 0.6 stopped at r = 0.1, far off; the
+    walk also left 0.3 a little off. Offered its neighbours' solutions, moved along the slope,
+    each point takes the best, and the improvement travels in both directions until nothing
+    changes: every point ends nearer its conditional optimum than before, never further."""
+
+    def best(u: float) -> float:
+        return u + u**2
+
+    def judged(u: float, rests: np.ndarray) -> np.ndarray:
+        return (rests[:, 0] - best(u)) ** 2
+
+    solutions = {u: np.array([best(u)]) for u in (0.0, 0.1, 0.2, 0.4, 0.5, 0.7, 0.8)}
+    solutions[0.3] = np.array([best(0.3) + 0.05])
+    solutions[0.6] = np.array([0.1])
+    before = {u: float(judged(u, rest[None])[0]) for u, rest in solutions.items()}
+    taken = smoothed(solutions, np.array([2.0]), judged)
+    after = {u: float(judged(u, rest[None])[0]) for u, rest in solutions.items()}
+    assert taken == {0.3, 0.6}
+    assert all(after[u] <= before[u] for u in solutions)
+    # 0.6 from 0.5 moved by 2 x 0.1: 0.95 for 0.96; from 0.7 moved back: 1.19 - 0.2 = 0.99
+    assert solutions[0.6][0] == pytest.approx(0.95)
+    assert abs(solutions[0.3][0] - best(0.3)) < 0.05
 
 
 def test_interval_from_threshold_crossings() -> None:

@@ -581,10 +581,11 @@ def levenberg_marquardt(
     iterations: int,
     held: int | None = None,
 ) -> tuple[np.ndarray, float]:
-    """Stage 4: Levenberg-Marquardt steps on eq. (17)'s weighted residuals.
+    """Levenberg-Marquardt steps on eq. (17)'s weighted residuals: the search's stage 4, the end
+    of each of stage 2's polishes and of each profile point's re-optimisation.
 
     Each step takes the Jacobian with sized differences
-    (:func:`dtid.identification.search.sensitivity. jacobian`), solves for the steps of all
+    (:func:`dtid.identification.search.sensitivity.jacobian`), solves for the steps of all
     :data:`LM_DAMPINGS` and evaluates them in one batch; the best is kept if it lowers eq. (17) and
     holds on fresh draws (:func:`confirmed`), else the search ends. Nelder-Mead crawls along the
     shallow, coupled directions of the dampings and the friction; this step crosses them.
