@@ -63,6 +63,17 @@ def test_jacobian_agrees_with_a_plain_difference(linear: tuple) -> None:
         assert error < 0.15, name
 
 
+def test_jacobian_of_some_columns_is_those_of_the_whole(linear: tuple) -> None:
+    """Each column's steps are sized by its own sensitivity, so leaving a held parameter out
+    changes no other column (a profile's Levenberg-Marquardt steps skip the held one)."""
+    objective, truth = linear
+    whole, residual = jacobian(objective, truth)
+    some, residual_some = jacobian(objective, truth, [0, 2, 4])
+    assert some.shape == (len(residual), 3)
+    np.testing.assert_array_equal(some, whole[:, [0, 2, 4]])
+    np.testing.assert_array_equal(residual_some, residual)
+
+
 def test_compensation_undoes_most_of_a_change(linear: tuple) -> None:
     """Moving the others as predicted leaves a much smaller residual change than moving one
     parameter alone, for every parameter whose change the others can absorb at all."""

@@ -610,8 +610,7 @@ def levenberg_marquardt(
     best = start
     moving = [i for i in range(len(start)) if i != held]
     for _ in range(iterations):
-        jac, residual = jacobian(objective, best)
-        jac = jac[:, moving]
+        jac, residual = jacobian(objective, best, moving)
         if not (np.isfinite(jac).all() and np.isfinite(residual).all()):
             break
         normal = jac.T @ jac

@@ -35,7 +35,9 @@ STEP_RANGE = (0.002, 0.15)
 """Least and largest normalised step (the dampings and the friction need the largest)."""
 
 
-def jacobian(objective: Objective, unit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def jacobian(
+    objective: Objective, unit: np.ndarray, columns: Sequence[int] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Jacobian of the weighted residuals at one parameter set, by sized central differences.
 
     Parameters
@@ -44,15 +46,19 @@ def jacobian(objective: Objective, unit: np.ndarray) -> tuple[np.ndarray, np.nda
         Eq. (17).
     unit
         (n_free,) normalised free values; steps are clipped to the box.
+    columns
+        Free parameters to differentiate by (default: all); a held parameter's column costs two
+        model evaluations a round for nothing.
 
     Returns
     -------
     tuple of numpy.ndarray
-        The Jacobian (bins, n_free), per normalised unit, and the residuals at ``unit`` (bins,),
-        as :meth:`dtid.identification.search.identify.Objective.residuals`; NaN where the model
-        could not idle at some step.
+        The Jacobian (bins, len(columns)), per normalised unit, and the residuals at ``unit``
+        (bins,), as :meth:`dtid.identification.search.identify.Objective.residuals`; NaN where
+        the model could not idle at some step.
     """
-    n_free = len(unit)
+    cols = np.arange(len(unit)) if columns is None else np.asarray(columns, dtype=int)
+    n = len(cols)
     spreads = np.concatenate(
         [
             np.full(len(data), np.linalg.norm(data - data.mean()))
@@ -60,12 +66,13 @@ def jacobian(objective: Objective, unit: np.ndarray) -> tuple[np.ndarray, np.nda
             for data in measured
         ]
     )
-    steps = np.full(n_free, FIRST_STEP)
+    steps = np.full(n, FIRST_STEP)
     for _ in range(2):  # measure the sensitivities, then again with steps sized by them
-        up = np.clip(unit + np.diag(steps), 0.0, 1.0)
-        down = np.clip(unit - np.diag(steps), 0.0, 1.0)
+        shift = np.zeros((n, len(unit)))
+        shift[np.arange(n), cols] = steps
+        up, down = np.clip(unit + shift, 0.0, 1.0), np.clip(unit - shift, 0.0, 1.0)
         rows = objective.residuals(np.vstack([up, down, unit[None]]))
-        result = (rows[:n_free] - rows[n_free : 2 * n_free]).T / np.diag(up - down)
+        result = (rows[:n] - rows[n : 2 * n]).T / (up - down)[np.arange(n), cols]
         if not np.isfinite(result).all():
             break  # some step could not idle: no size to measure, the caller sees the NaN
         rms_db = np.sqrt(np.mean((result * spreads[:, None]) ** 2, axis=0))
