@@ -26,9 +26,10 @@ first negative lag, at least ``BIN_CORRELATION``, the Hann window's own). The no
 is the noise where the parameter moves the model. A profile divides lambda further by
 :func:`small_sample_factor`: two 60 s chirps give about sixty independent bins for ten
 parameters, so the residuals at the minimum understate the noise by a sixth, and a ratio with
-an estimated variance follows F(1, nu), not chi-square (1.24 in all there; on the randomised
-trial's twelve recordings whose intervals had missed, the equivalent threshold of 4.8 took the
-closed intervals from 84 to 87 of 96 holding the truth). The 95 % confidence interval is where
+an estimated variance follows F(1, nu), not chi-square (1.22 and 1.30 on the two independent
+vehicles). With it and the neighbours' solutions below, the randomised trial's twelve
+recordings whose intervals had missed: 86 of 96 closed intervals hold the truth (83 of 95
+before; docs/accuracy.md). The 95 % confidence interval is where
 lambda stays below the chi-square quantile with one degree of freedom (3.84); its ends are read
 off the points by interpolating the root of lambda, which is linear where lambda is quadratic
 (:func:`_crossing`).
