@@ -547,7 +547,6 @@ def profile(
         total = np.zeros(len(units))
         for draws in judges:
             total += draws(units)
-            objective.count(draws)
         return total
 
     def smooth() -> None:
@@ -577,6 +576,9 @@ def profile(
 
     if others:
         smooth()
+    if stochastic:  # the judges' evaluations, counted once (their counters accumulate)
+        for draws in judges:
+            objective.count(draws)
     grid_unit = np.array(sorted(evaluated))
     best_objective = np.array([evaluated[u][0] for u in grid_unit])
     stat, margin = np.array([stat_and_margin(u) for u in grid_unit]).T
