@@ -47,7 +47,8 @@ from dtid.simulator.mechanisms import (
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
 STABILITY_LIMIT = 0.5
-"""Largest omega*h (and damping rate * h) a substep may take; symplectic Euler is stable below 2."""
+"""Largest omega*h (and damping rate * h) a substep may take; the kernel's drift-kick-drift step is
+stable below 2 (:mod:`dtid.simulator.kernel`)."""
 QUADRATIC_RATE_RAD_S = 5.0
 """Relative DMF speed at which quadratic damping's slope is bounded for the step size, rad/s
 (a 10 Hz oscillation of 0.08 rad)."""
