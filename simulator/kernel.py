@@ -3,16 +3,22 @@
 The independent variable is the crank angle phi_1, advanced by exactly ``STEP_RAD`` per step
 (eq. 8); the time step is dt = STEP_RAD / omega_1. A step may be split into ``n_sub`` equal
 substeps when a parameter set is stiff for the angle step (see
-:func:`dtid.simulator.simulate.substeps`); the engine torque is held over them. Each substep is a
-drift-kick-drift (Stormer-Verlet) step: the deflections advance half the substep with the
-velocities, the smooth forces (springs, dampers, engine torque) kick the velocities with their
-values at that midpoint (the velocities there predicted from the forces at the substep's start,
-as the dampers' forces depend on them), Coulomb friction acts as an impulse (Moreau), then the
-deflections advance the other half with the new velocities and the backlash state follows. The
-scheme is second order in the step: a linear three-mass plant's |G_DRV| is within 0.02 dB of the
-continuous-time response at the angle step (the symplectic Euler it replaced, first order, was
-off by up to 0.3 dB near the resonances of a stiff drivetrain at 800 rpm;
-``tests/test_simulator.py``).
+:func:`dtid.simulator.simulate.substeps`); the engine torque is held over them. Two schemes
+(``Loop.integration``):
+
+* :data:`EULER`, the default: the smooth forces (springs, dampers, engine torque) act on the
+  velocities with their values at the substep's start (symplectic Euler), Coulomb friction acts
+  as an impulse (Moreau), then the deflections and the backlash state advance with the new
+  velocities. First order in the step: the paper's angle-discrete model as eq. (8) reads, and
+  what an independent implementation of the paper evidently integrates too
+  (docs/model-assumptions.md).
+* :data:`VERLET`: drift-kick-drift (Stormer-Verlet): the deflections advance half the substep,
+  the smooth forces kick the velocities with their values at that midpoint (the velocities
+  there predicted from the forces at the substep's start, as the dampers' forces depend on
+  them), the friction impulse follows, then the deflections advance the other half. Second
+  order: a linear three-mass plant's |G_DRV| is within 0.02 dB of the continuous-time response
+  at the angle step, where Euler is off by up to 0.3 dB near the resonances of a stiff
+  drivetrain at 800 rpm (``tests/test_simulator.py``): the continuous plant, a vehicle.
 
 Events on the angle grid, at the start of a step, in this order:
 
@@ -105,6 +111,10 @@ MIN_SPEED_RATIO = 0.5
 """The run stops below this fraction of the set-point speed (stall)."""
 MAX_SPEED_RATIO = 3.0
 """The run stops above this multiple of the set-point speed (run-away)."""
+EULER = 0
+"""``Loop.integration``: symplectic Euler, first order (the paper's scheme as eq. 8 reads)."""
+VERLET = 1
+"""``Loop.integration``: drift-kick-drift with predicted midpoint velocities, second order."""
 
 
 # Layout of a controller array (:meth:`dtid.simulator.controller.IdleController.as_array`).
@@ -164,6 +174,8 @@ class Loop(NamedTuple):
         Standard deviations: relative combustion variation of T_m, speed noise in rpm, torque
         noise in N*m; then 1 for a speed sensor that averages times (a tooth timer: the
         window's angle over its time) instead of the step speeds (eq. 9), if given.
+    integration
+        :data:`EULER` or :data:`VERLET` (see the module notes).
     """
 
     combustion_shape: np.ndarray
@@ -175,6 +187,7 @@ class Loop(NamedTuple):
     request_t: np.ndarray
     request_nm: np.ndarray
     sigmas: np.ndarray
+    integration: int = 0
 
 
 class Job(NamedTuple):
@@ -260,7 +273,7 @@ def initial_state(params: np.ndarray, loop: Loop, test_nm: float) -> np.ndarray:
 
 
 @numba.njit(cache=True, inline="always")
-def _accelerations(
+def _torques(
     net: float,
     delta12: float,
     delta23: float,
@@ -270,9 +283,9 @@ def _accelerations(
     w2: float,
     w3: float,
     w4: float,
-    drivetrain: tuple,
+    coupling: tuple,
 ) -> tuple[float, float, float, float]:
-    """Angular accelerations of J1, J2, J3 and J4 under the smooth forces, rad/s^2.
+    """Net smooth torque on J1, J2, J3 and J4, N*m (Coulomb friction is the step's impulse).
 
     Parameters
     ----------
@@ -284,14 +297,14 @@ def _accelerations(
         The gear play's backlash state, rad.
     w1, w2, w3, w4
         Angular velocities, rad/s.
-    drivetrain
-        Inverse inertias 1/J1..1/J4 (0 without J4), 1/(kg*m^2); the DMF's c12, d12, half play,
-        play centre, second stage and quadratic damping; the gear coupling's c23, d23, half
-        play and second stage; the gearbox drag d3; the belt's c14 and d14 (SI units, in this
-        order).
+    coupling
+        The DMF's c12, d12, half play, play centre, second stage (stiffness, knee) and
+        quadratic damping; the gear coupling's c23, d23, half play and second stage; the
+        gearbox drag d3; the belt's c14 and d14 (SI units, in this order; zeros where a
+        mechanism is absent).
     """
-    inv1, inv2, inv3, inv4, c12, d12, half12, shift12, c12_2, knee12, d12_2 = drivetrain[:11]
-    c23, d23, half23, c23_2, knee23, d3, c14, d14 = drivetrain[11:]
+    c12, d12, half12, shift12, c12_2, knee12, d12_2 = coupling[:7]
+    c23, d23, half23, c23_2, knee23, d3, c14, d14 = coupling[7:]
     rate12 = w1 - w2
     centred12 = delta12 - shift12
     torque12 = dmf_smooth_torque(centred12, rate12, c12, d12, half12)
@@ -301,15 +314,8 @@ def _accelerations(
     if d12_2 > 0.0:
         torque12 += d12_2 * rate12 * abs(rate12)
     torque23 = backlash_torque(delta23, w2 - w3, backlash, c23, d23, half23, c23_2, knee23)
-    torque14 = 0.0
-    if inv4 > 0.0:  # accessory_mode: J4 on J1 through the belt
-        torque14 = c14 * delta14 + d14 * (w1 - w4)
-    return (
-        inv1 * (net - torque12 - torque14),
-        inv2 * (torque12 - torque23),
-        inv3 * (torque23 - d3 * w3),
-        inv4 * torque14,
-    )
+    torque14 = c14 * delta14 + d14 * (w1 - w4)  # accessory_mode: J4 on J1 through the belt
+    return net - torque12 - torque14, torque12 - torque23, torque23 - d3 * w3, torque14
 
 
 @numba.njit(cache=True, nogil=True)
@@ -351,9 +357,10 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
     c23_2, knee23, d3 = params[P_C23_2], params[P_KNEE23], params[P_D3]
     j4, c14, d14 = params[P_J4], params[P_C14], params[P_D14]
     inv4 = 1.0 / j4 if j4 > 0.0 else 0.0
-    drivetrain = (inv1, inv2, inv3, inv4, c12, d12, half12, shift12, c12_2, knee12, d12_2) + (
-        c23, d23, half23, c23_2, knee23, d3, c14, d14
-    )
+    belt_c, belt_d = (c14, d14) if j4 > 0.0 else (0.0, 0.0)
+    dmf = (c12, d12, half12, shift12, c12_2, knee12, d12_2)
+    coupling = (*dmf, c23, d23, half23, c23_2, knee23, d3, belt_c, belt_d)
+    verlet = loop.integration == VERLET
     tau_m, sensor_gain, share = params[P_TAU_M], params[P_G_T], params[P_SHARE]
     kp, ki, kd, d_tau = controller[C_KP], controller[C_KI], controller[C_KD], controller[C_D_TAU]
     u_min, u_max, closed = controller[C_U_MIN], controller[C_U_MAX], controller[C_CLOSED] > 0.5
@@ -465,43 +472,40 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
             engine += held[cylinder] * combustion_shape[shifted]
         net = engine - t_loss
         h = dt / n_sub
-        half = 0.5 * h
+        drift = 0.5 * h if verlet else 0.0  # before the kick; h - drift after it
         for _ in range(n_sub):
-            # drift half a substep, kick with the smooth forces at the midpoint (the velocities
-            # there predicted with the start's forces), friction impulse, drift the other half
-            mid12 = delta12 + half * (w1 - w2)
-            mid23 = delta23 + half * (w2 - w3)
-            mid14 = delta14 + half * (w1 - w4)
-            a1, a2, a3, a4 = _accelerations(
-                net, mid12, mid23, mid14, backlash, w1, w2, w3, w4, drivetrain
-            )
-            a1, a2, a3, a4 = _accelerations(
-                net,
-                mid12,
-                mid23,
-                mid14,
-                backlash,
-                w1 + half * a1,
-                w2 + half * a2,
-                w3 + half * a3,
-                w4 + half * a4,
-                drivetrain,
-            )
-            w1 += h * a1
-            w2 += h * a2
-            w3 += h * a3
-            w4 += h * a4
+            mid12 = delta12 + drift * (w1 - w2)
+            mid23 = delta23 + drift * (w2 - w3)
+            mid14 = delta14 + drift * (w1 - w4)
+            f1, f2, f3, f4 = _torques(net, mid12, mid23, mid14, backlash, w1, w2, w3, w4, coupling)
+            if verlet:  # the forces at the midpoint velocities, predicted with these
+                f1, f2, f3, f4 = _torques(
+                    net,
+                    mid12,
+                    mid23,
+                    mid14,
+                    backlash,
+                    w1 + drift * inv1 * f1,
+                    w2 + drift * inv2 * f2,
+                    w3 + drift * inv3 * f3,
+                    w4 + drift * inv4 * f4,
+                    coupling,
+                )
+            w1 += h * inv1 * f1
+            w2 += h * inv2 * f2
+            w3 += h * inv3 * f3
+            w4 += h * inv4 * f4
             friction = tc12
             if tc12_2 > 0.0 and abs(mid12 - shift12) > phi12_f:  # friction_hysteresis
                 friction += tc12_2
             impulse = friction_impulse(w1 - w2, inv1, inv2, friction, h)
             w1 -= impulse * inv1
             w2 += impulse * inv2
-            delta12 = mid12 + half * (w1 - w2)
+            delta12 = mid12 + (h - drift) * (w1 - w2)
             if j4 > 0.0:
-                delta14 = mid14 + half * (w1 - w4)
+                delta14 = mid14 + (h - drift) * (w1 - w4)
             delta23_old = delta23
-            delta23 = mid23 + half * (w2 - w3)
+            delta23 = mid23 + (h - drift) * (w2 - w3)
             backlash = backlash_update(delta23, delta23_old, backlash, c23, d23, half23, h)
 
         window_sum += w1 - window[window_pos]

@@ -23,10 +23,12 @@ from dtid.simulator.angle_grid import (
 from dtid.simulator.controller import IdleController
 from dtid.simulator.engine import EngineGeometry, EngineTables, engine_tables
 from dtid.simulator.kernel import (
+    EULER,
     MAX_SPEED_RATIO,
     MIN_SPEED_RATIO,
     STATUS_OK,
     STATUS_SPEED_RANGE,
+    VERLET,
     Job,
     Jobs,
     Loop,
@@ -46,8 +48,10 @@ from dtid.simulator.mechanisms import (
 )
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
+INTEGRATION: dict[str, int] = {"euler": EULER, "verlet": VERLET}
+"""The kernel's integration schemes by name (:mod:`dtid.simulator.kernel`)."""
 STABILITY_LIMIT = 0.5
-"""Largest omega*h (and damping rate * h) a substep may take; the kernel's drift-kick-drift step is
+"""Largest omega*h (and damping rate * h) a substep may take; both of the kernel's schemes are
 stable below 2 (:mod:`dtid.simulator.kernel`)."""
 QUADRATIC_RATE_RAD_S = 5.0
 """Relative DMF speed at which quadratic damping's slope is bounded for the step size, rad/s
@@ -82,6 +86,9 @@ class SimulationOptions:
         How the speed sensor averages its half revolution: ``"speeds"``, the mean of the 30
         step speeds (eq. 9, the product's ECU), or ``"times"``, the window's angle over its
         time, as a tooth timer that adds up tooth times does.
+    integration
+        ``"euler"`` (the default: the paper's angle-discrete model, first order) or ``"verlet"``
+        (second order: the continuous plant to 0.02 dB; :mod:`dtid.simulator.kernel`).
     effects
         Mechanisms beyond the paper's model present in the vehicle
         (:mod:`dtid.simulator.mechanisms`); none by default. Parameter rows given with the
@@ -97,6 +104,7 @@ class SimulationOptions:
     controller: IdleController = field(default_factory=IdleController)
     speed_average: str = "speeds"
     effects: Effects = field(default_factory=Effects)
+    integration: str = "euler"
 
     def __post_init__(self) -> None:
         for name in ("combustion_variation", "speed_noise_rpm", "torque_noise_nm"):
@@ -107,6 +115,11 @@ class SimulationOptions:
             raise ConfigError(
                 f"simulation option speed_average must be 'speeds' or 'times', got "
                 f"{self.speed_average!r}"
+            )
+        if self.integration not in INTEGRATION:
+            raise ConfigError(
+                f"simulation option integration must be 'euler' or 'verlet', got "
+                f"{self.integration!r}"
             )
 
     @classmethod
@@ -176,6 +189,7 @@ class SimulationOptions:
             request_t,
             request_nm,
             self.sigmas(),
+            INTEGRATION[self.integration],
         )
 
 

@@ -190,28 +190,34 @@ the largest omega * dt of the angle step."""
 
 
 @pytest.mark.parametrize(("stiff", "setpoint_rpm"), [(False, 1000.0), (True, 800.0)])
-def test_integration_is_second_order(
+def test_verlet_is_second_order_and_euler_first(
     reference: DrivetrainParameters, stiff: bool, setpoint_rpm: float
 ) -> None:
-    """Linear plant: one step of pi/30 is within 0.03 dB of sixteen substeps (the converged
-    response); the first-order symplectic Euler it replaced was off by 0.24 and 0.48 dB."""
+    """Linear plant: with the Verlet scheme one step of pi/30 is within 0.03 dB of sixteen
+    substeps (the converged, continuous response); the Euler scheme (eq. 8's discrete model) is
+    off by more than 0.1 dB near the resonances (measured 0.24 and 0.48 dB)."""
     p = _linear(STIFF if stiff else reference)
     plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=30.0)
-    options = SimulationOptions.clean(controller=IdleController(setpoint_rpm=setpoint_rpm))
-    one, converged = (_frf_with_substeps(p, n_sub, plan, options) for n_sub in (1, 16))
-    coherent = one.coherence > 0.9
-    assert coherent.mean() > 0.9
-    assert np.abs(one.drv_db - converged.drv_db)[coherent].max() < 0.03
+    errors = {}
+    for scheme in ("verlet", "euler"):
+        options = SimulationOptions.clean(
+            controller=IdleController(setpoint_rpm=setpoint_rpm), integration=scheme
+        )
+        one, converged = (_frf_with_substeps(p, n_sub, plan, options) for n_sub in (1, 16))
+        coherent = one.coherence > 0.9
+        assert coherent.mean() > 0.9
+        errors[scheme] = np.abs(one.drv_db - converged.drv_db)[coherent].max()
+    assert errors["verlet"] < 0.03, errors
+    assert errors["euler"] > 0.1, errors
 
 
 def test_integration_converges_with_substeps(reference: DrivetrainParameters) -> None:
-    """With free play and friction (first order at their switches): four substeps change |G_DRV|
-    by less than 0.1 dB."""
+    """One step of pi/30 is accurate: four substeps change |G_DRV| by less than 0.2 dB."""
     plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=30.0)
     options = SimulationOptions.clean()
     one, four = (_frf_with_substeps(reference, n_sub, plan, options) for n_sub in (1, 4))
     coherent = one.coherence > 0.9
-    assert np.abs(one.drv_db - four.drv_db)[coherent].max() < 0.1
+    assert np.abs(one.drv_db - four.drv_db)[coherent].max() < 0.2
 
 
 def test_a_parameter_set_that_cannot_idle_is_refused(reference: DrivetrainParameters) -> None:

@@ -45,6 +45,14 @@ def test_given_keys_replace_the_reference_engines(tmp_path: Path) -> None:
     assert data.as_dict()["engine"]["p_l"] == reference.manifold_pressure_pa
     assert data.as_dict()["sensors"] == {"speed_average": "times"}
     assert "bore, r, l, eps_c, speed_average from" in data.describe()
+    assert data.integration == "euler"  # eq. (8)'s discrete model unless [model] says otherwise
+    assert data.as_dict()["model"] == {"integration": "euler"}
+
+
+def test_the_model_table_chooses_the_integration(tmp_path: Path) -> None:
+    data = load_vehicle_data(_file(tmp_path, '[model]\nintegration = "verlet"\n'))
+    assert (data.integration, data.given) == ("verlet", ("integration",))
+    assert data.engine == EngineGeometry()
 
 
 @pytest.mark.parametrize(
@@ -58,6 +66,7 @@ def test_given_keys_replace_the_reference_engines(tmp_path: Path) -> None:
         ("[engine]\nr = 0.2\nl = 0.15\n", "longer than the crank radius"),
         ("[drivetrain]\nJ1 = 0.1\n", "has no \\[engine\\] table"),
         ("[sensors]\nspeed_average = 'mean'\n", "speeds.* or .*times"),
+        ("[model]\nintegration = 'rk4'\n", "euler.* or .*verlet"),
         ("[engine\n", "not valid TOML"),
     ],
 )

@@ -174,6 +174,7 @@ class ModelTest:
             controller=controller,
             engine=self.vehicle.engine,
             speed_average=self.vehicle.speed_average,
+            integration=self.vehicle.integration,
         )
         object.__setattr__(self, "options", options)
         if self.loop is not None:  # each run from a stroke SETTLE_S before it

@@ -548,7 +548,10 @@ def plan_test(
     options = options or SimulationOptions()
     if vehicle is not None:
         options = dataclasses.replace(
-            options, engine=vehicle.engine, speed_average=vehicle.speed_average
+            options,
+            engine=vehicle.engine,
+            speed_average=vehicle.speed_average,
+            integration=vehicle.integration,
         )
     cap = safety.max_amplitude_nm
     amplitudes = [a for a in CANDIDATE_AMPLITUDES_NM if a <= cap * (1 + 1e-9)]
