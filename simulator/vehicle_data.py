@@ -10,9 +10,9 @@ them; without them the model uses the reference engine and says so.
 
 The speed sensor's arithmetic is vehicle data too: eq. (9) averages the step speeds of half a
 revolution, a tooth timer adds up the tooth times (the window's angle over its time). On a
-clean simulated 10 N*m run of a tooth-timer vehicle the model at the truth fits at 0.018
-(NRMSE) when told, 0.031 when not (eq. 9's vehicle: 0.008); on noisy 60 s runs the difference
-is within 0.002.
+clean simulated 40 s run at 10 N*m of a tooth-timer vehicle the model at the truth fits at
+0.0064 (NRMSE) when told, 0.0055 when not (eq. 9's vehicle: 0.0055): within the replay's own
+error; on noisy 60 s runs the difference is within 0.002.
 
 How the model integrates eq. (6) is the last choice here: the paper fixes the angle step
 (pi/30, eq. 8), not the scheme. ``"euler"`` (the default) is the paper's angle-discrete model,
