@@ -115,6 +115,8 @@ EULER = 0
 """``Loop.integration``: symplectic Euler, first order (the paper's scheme as eq. 8 reads)."""
 VERLET = 1
 """``Loop.integration``: drift-kick-drift with predicted midpoint velocities, second order."""
+INTEGRATION: dict[str, int] = {"euler": EULER, "verlet": VERLET}
+"""The integration schemes by the name vehicle data and simulation options give them."""
 
 
 # Layout of a controller array (:meth:`dtid.simulator.controller.IdleController.as_array`).
@@ -187,7 +189,7 @@ class Loop(NamedTuple):
     request_t: np.ndarray
     request_nm: np.ndarray
     sigmas: np.ndarray
-    integration: int = 0
+    integration: int = EULER
 
 
 class Job(NamedTuple):
@@ -474,9 +476,11 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
         h = dt / n_sub
         drift = 0.5 * h if verlet else 0.0  # before the kick; h - drift after it
         for _ in range(n_sub):
-            mid12 = delta12 + drift * (w1 - w2)
-            mid23 = delta23 + drift * (w2 - w3)
-            mid14 = delta14 + drift * (w1 - w4)
+            mid12, mid23, mid14 = delta12, delta23, delta14
+            if verlet:
+                mid12 += drift * (w1 - w2)
+                mid23 += drift * (w2 - w3)
+                mid14 += drift * (w1 - w4)
             f1, f2, f3, f4 = _torques(net, mid12, mid23, mid14, backlash, w1, w2, w3, w4, coupling)
             if verlet:  # the forces at the midpoint velocities, predicted with these
                 f1, f2, f3, f4 = _torques(
@@ -494,7 +498,8 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
             w1 += h * inv1 * f1
             w2 += h * inv2 * f2
             w3 += h * inv3 * f3
-            w4 += h * inv4 * f4
+            if j4 > 0.0:
+                w4 += h * inv4 * f4
             friction = tc12
             if tc12_2 > 0.0 and abs(mid12 - shift12) > phi12_f:  # friction_hysteresis
                 friction += tc12_2

@@ -23,12 +23,11 @@ from dtid.simulator.angle_grid import (
 from dtid.simulator.controller import IdleController
 from dtid.simulator.engine import EngineGeometry, EngineTables, engine_tables
 from dtid.simulator.kernel import (
-    EULER,
+    INTEGRATION,
     MAX_SPEED_RATIO,
     MIN_SPEED_RATIO,
     STATUS_OK,
     STATUS_SPEED_RANGE,
-    VERLET,
     Job,
     Jobs,
     Loop,
@@ -48,8 +47,6 @@ from dtid.simulator.mechanisms import (
 )
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
-INTEGRATION: dict[str, int] = {"euler": EULER, "verlet": VERLET}
-"""The kernel's integration schemes by name (:mod:`dtid.simulator.kernel`)."""
 STABILITY_LIMIT = 0.5
 """Largest omega*h (and damping rate * h) a substep may take; both of the kernel's schemes are
 stable below 2 (:mod:`dtid.simulator.kernel`)."""
@@ -118,7 +115,7 @@ class SimulationOptions:
             )
         if self.integration not in INTEGRATION:
             raise ConfigError(
-                f"simulation option integration must be 'euler' or 'verlet', got "
+                f"simulation option integration must be one of {', '.join(INTEGRATION)}, got "
                 f"{self.integration!r}"
             )
 

@@ -55,6 +55,7 @@ from pathlib import Path
 from dtid.errors import ConfigError
 from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.engine import EngineGeometry
+from dtid.simulator.kernel import INTEGRATION
 from dtid.simulator.parameters import read_toml
 
 ENGINE_KEYS: dict[str, tuple[str, str]] = {
@@ -134,8 +135,9 @@ def load_vehicle_data(path: str | Path) -> VehicleData:
     if unknown or average not in ("speeds", "times"):
         raise ConfigError(f'{path}: [sensors] takes speed_average = "speeds" or "times" only')
     integration = model.get("integration", "euler")
-    if [key for key in model if key != "integration"] or integration not in ("euler", "verlet"):
-        raise ConfigError(f'{path}: [model] takes integration = "euler" or "verlet" only')
+    if [key for key in model if key != "integration"] or integration not in INTEGRATION:
+        names = " or ".join(f'"{name}"' for name in INTEGRATION)
+        raise ConfigError(f"{path}: [model] takes integration = {names} only")
     given = tuple(k for k in table if k in ENGINE_KEYS) + tuple(sensors) + tuple(model)
     engine = parse_engine(table, str(path))
     return VehicleData(engine, average, given, str(path), integration)
