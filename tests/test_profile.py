@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
@@ -28,6 +29,7 @@ from dtid.identification.uncertainty.profile import (
     Profile,
     _interval_and_verdict,
     independent_bins,
+    nested_p_value,
     profile,
     small_sample_factor,
     smoothed,
@@ -341,3 +343,26 @@ def test_one_amplitude_cannot_pin_stiffness_and_play() -> None:
         assert right < left, name  # the family runs towards larger c and eps
         low2, up2 = two[name].interval
         assert two[name].verdict == "practical" and low2 < theta[name] < up2, name
+
+
+def test_nested_p_value_is_exact_for_a_linear_fit() -> None:
+    """Linear least squares, ten parameters on sixty independent bins and two more in the
+    larger model, the noise variance from the larger fit's residuals (their mean square, as the
+    statistic takes it): at the truth (the two extra zero) p < 0.05 in 5 % of the draws with
+    the F reference; chi-square(2) rejects more often."""
+    rng = np.random.default_rng(11)
+    n, p, k, draws = 60, 10, 2, 4000
+    design = rng.standard_normal((n, p + k))
+    truth = np.concatenate([np.ones(p), np.zeros(k)])
+    exact = naive = 0
+    for _ in range(draws):
+        y = design @ truth + rng.standard_normal(n)
+        ssr = np.sum((y - design @ np.linalg.lstsq(design, y, rcond=None)[0]) ** 2)
+        small = design[:, :p]
+        ssr0 = np.sum((y - small @ np.linalg.lstsq(small, y, rcond=None)[0]) ** 2)
+        lam = (ssr0 - ssr) / (ssr / n)
+        exact += nested_p_value(lam, k, float(n), p + k) < 0.05
+        naive += stats.chi2.sf(lam, k) < 0.05
+    assert exact / draws == pytest.approx(0.05, abs=0.01)
+    assert naive / draws > 0.065
+    assert nested_p_value(9.21, 2, 1e7, 12) == pytest.approx(0.01, rel=1e-3)  # chi-square

@@ -30,9 +30,12 @@ Three steps, each on the identifying runs only (the held-out runs judge the resu
 3. **Test**. The improvement is the intervals' own likelihood-ratio statistic
    (:func:`dtid.identification.uncertainty.profile.statistic`: the sandwich form, whose noise
    scale takes the residual's correlation length, i.e. the effective sample size), evaluated on
-   :data:`TEST_REALIZATIONS` realizations of the model, chi-square with as many degrees of
-   freedom as the mechanism has parameters, on fresh draws of the model (not those the refits
-   chose their optima on), its p-value family-wise over the candidates tested against the same
+   :data:`TEST_REALIZATIONS` realizations of the model, on fresh draws of the model (not those
+   the refits chose their optima on). Its reference is the F test of nested models
+   (:func:`dtid.identification.uncertainty.profile.nested_p_value`: the residuals' variance is
+   estimated after a fit of the ten parameters and the mechanisms', on the residuals'
+   independent bins), F(k, nu) with k the mechanism's parameters, which for many bins is
+   chi-square(k) / k; the p-value is family-wise over the candidates tested against the same
    model (Sidak). A mechanism is accepted when p < :data:`ACCEPT_P`
    **and** the held-out runs' NRMSE falls below both the model it extends and the identified
    model's, **and** both hold again against the model it extends re-polished from the
@@ -64,7 +67,12 @@ from dtid.identification.search.parameterization import (
     theta_from_parameters,
 )
 from dtid.identification.search.start_values import start_thetas
-from dtid.identification.uncertainty.profile import profile, statistic
+from dtid.identification.uncertainty.profile import (
+    independent_bins,
+    nested_p_value,
+    profile,
+    statistic,
+)
 from dtid.simulator.mechanisms import (
     BY_NAME,
     EXTRA_INDEX,
@@ -549,10 +557,11 @@ class Refit:
         after_db = [c[0] for c in curves]
         before_db = [c[1] for c in curves]
         if not all(np.isfinite(c).all() for c in after_db):
-            lam = 0.0
+            lam, single = 0.0, 1.0
         else:
             lam = statistic(measured, after_db, before_db)
-        single = float(stats.chi2.sf(lam, k))
+            fitted = len(Extra(self.base, row, tuple(BY_NAME[m] for m in mechanisms)).free)
+            single = nested_p_value(lam, k, independent_bins(measured, after_db), fitted)
         p_value = 1.0 if single >= 1.0 else float(-np.expm1(tried * np.log1p(-single)))
         scores = self.run_nrmse(row)
         held = sum(scores.get("validation", {}).values())

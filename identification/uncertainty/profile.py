@@ -323,6 +323,37 @@ def small_sample_factor(independent: float, fitted: int) -> float:
     return independent / nu * float(stats.f.ppf(CONFIDENCE, 1, nu)) / THRESHOLD
 
 
+def nested_p_value(statistic_value: float, added: int, independent: float, fitted: int) -> float:
+    """p-value of the statistic of a model with ``added`` parameters more than the one it
+    extends, its variance estimated from the residuals of the larger model's fit.
+
+    The statistic divides the SSR difference by the residuals' mean square (per independent
+    bin), low by nu / independent with nu = independent - fitted degrees of freedom left, and
+    estimated, not known: for a linear model the exact reference is the F test of nested models
+    (Seber and Wild 2003, 5.3),
+
+        F = statistic * nu / (independent * added)  ~  F(added, nu),
+
+    which tends to chi-square(added) / added for many bins. Below one degree of freedom left,
+    nu is taken as one.
+
+    Parameters
+    ----------
+    statistic_value
+        The likelihood-ratio statistic (:func:`statistic`) of the smaller model against the
+        larger one's minimum.
+    added
+        Parameters the larger model adds, at least one.
+    independent
+        Independent bins of the larger model's residuals (:func:`independent_bins`).
+    fitted
+        Parameters fitted in the larger model.
+    """
+    nu = max(independent - fitted, 1.0)
+    ratio = statistic_value * nu / (independent * added)
+    return float(stats.f.sf(ratio, added, nu))
+
+
 def _ratio(delta_ssr: float, scale: float) -> float:
     """An SSR difference in units of the statistic: infinite for a failed model (NaN scale), 0
     for the minimum's own (zero scale) or a smaller SSR."""
