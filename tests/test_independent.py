@@ -25,6 +25,7 @@ skipped, and says so, where the recordings are not beside the repository.
 
 from __future__ import annotations
 
+import dataclasses
 import tomllib
 from pathlib import Path
 
@@ -33,7 +34,7 @@ import pytest
 
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.pipeline import run_identification
-from dtid.identification.search.identify import Objective, refine
+from dtid.identification.search.identify import Objective, SearchSettings, refine
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
@@ -57,7 +58,9 @@ TARGETS = {
 10 %, dampings 25 %, friction 20 %."""
 
 
-def _vehicle(name: str) -> tuple[list, DrivetrainParameters, Path]:
+def _vehicle(name: str, **vehicle: str) -> tuple[list, DrivetrainParameters, Path]:
+    """The vehicle's three recordings with its engine data (``vehicle`` replaces other
+    :class:`VehicleData` fields), its true drivetrain and its folder."""
     folder = INDEPENDENT / name
     if not folder.is_dir():
         pytest.skip(f"independent recordings not present in {folder}")
@@ -66,7 +69,7 @@ def _vehicle(name: str) -> tuple[list, DrivetrainParameters, Path]:
         files,
         folder / "oem_vehicle.dbc",
         folder / "signals.toml",
-        load_vehicle_data(folder / "truth.toml"),
+        dataclasses.replace(load_vehicle_data(folder / "truth.toml"), **vehicle),
     )
     with (folder / "truth.toml").open("rb") as handle:
         table = tomllib.load(handle)["drivetrain"]
@@ -108,3 +111,30 @@ def test_independent_vehicle(name: str) -> None:
     for pinned in ("J_sum", "x1", "x12", "eps12", "d12"):
         found = result.theta[pinned] / true_theta[pinned] - 1
         assert abs(found) <= TARGETS[pinned], f"{pinned} {found:+.3f}"
+
+
+@pytest.mark.slow
+def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
+    """With the speed sensor adding up tooth times (``[sensors] speed_average = "times"``)
+    vehicle_2's truth fits far better than with eq. (9)'s average of speeds (eq. 17 0.069
+    against 0.080), and the optimum nearest it lies within 2 % on all ten parameters (0.5-5.4 %
+    with eq. 9's sensor), at eq. 17 0.0638, as well as the best the default's search finds
+    (0.0639): these recordings' sensor is a tooth timer (docs/accuracy.md). The search's own
+    end is not asserted (at the default budget it ends in another basin, 0.0654)."""
+    tests, truth, _ = _vehicle("vehicle_2", speed_average="times")
+    brief = SearchSettings(popsize=4, generations=1, polish_starts=1, scan_starts=1)
+    report = run_identification(tests, reference_parameters(), settings=brief, profile_points=0)
+    par, fit = report.parameterization, report.fit
+    assert par is not None and fit is not None
+    model_tests = [t.model_test(runs) for t, runs in zip(fit.tests, fit.runs, strict=True)]
+    measured = [
+        [t.estimates[i].drv_db for i in runs] for t, runs in zip(fit.tests, fit.runs, strict=True)
+    ]
+    true_theta = theta_from_parameters(truth)
+    start = par.unit(np.array([[true_theta[n] for n in THETA_NAMES]]))[0]
+    nearest, value = refine(Objective(par, model_tests, measured), np.clip(start, 0.0, 1.0))
+    theta = dict(zip(THETA_NAMES, par.theta(nearest[None])[0], strict=True))
+    errors = {n: round(theta[n] / true_theta[n] - 1, 4) for n in THETA_NAMES}
+    assert max(abs(e) for e in errors.values()) < 0.025, errors
+    assert report.fit_objective(truth) < 0.072
+    assert value < 0.0645
