@@ -206,7 +206,8 @@ class Candidate:
     nrmse
         ``{"fit": {run: value}, "validation": {run: value}}``.
     statistic, p_value
-        The likelihood-ratio statistic against the model it extends and its chi-square p-value,
+        The likelihood-ratio statistic against the model it extends and its p-value (the F
+        reference of nested models, :func:`dtid.identification.uncertainty.profile.nested_p_value`),
         family-wise over the candidates tested against that model (Sidak).
     criterion
         2 k - statistic (AIC in the statistic's units; below zero it pays for its parameters).
