@@ -28,12 +28,13 @@ from __future__ import annotations
 import dataclasses
 import tomllib
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
 
 from dtid.identification.model.response import model_drv_db
-from dtid.identification.pipeline import run_identification
+from dtid.identification.pipeline import IdentificationReport, run_identification
 from dtid.identification.search.identify import Objective, SearchSettings, refine
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
@@ -76,6 +77,37 @@ def _vehicle(name: str, **vehicle: str) -> tuple[list, DrivetrainParameters, Pat
     return tests, DrivetrainParameters(**{n: table[n] for n in NAMES}), folder
 
 
+class Nearest(NamedTuple):
+    """The optimum nearest the truth: the search's last stages started at the truth."""
+
+    errors: dict[str, float]
+    """Relative error of each searched parameter against the truth."""
+    value: float
+    """Eq. (17) there."""
+    parameters: np.ndarray
+    """Its kernel parameter row, (1, n)."""
+    model_tests: list
+    """The model's repetitions of the identifying runs."""
+    measured: list
+    """Their measured |G_DRV| per run, dB."""
+
+
+def _nearest_the_truth(report: IdentificationReport, truth: DrivetrainParameters) -> Nearest:
+    """Refine from the truth on the report's identifying runs and parameterisation."""
+    par, fit = report.parameterization, report.fit
+    assert par is not None and fit is not None
+    model_tests = [t.model_test(runs) for t, runs in zip(fit.tests, fit.runs, strict=True)]
+    measured = [
+        [t.estimates[i].drv_db for i in runs] for t, runs in zip(fit.tests, fit.runs, strict=True)
+    ]
+    true_theta = theta_from_parameters(truth)
+    start = par.unit(np.array([[true_theta[n] for n in THETA_NAMES]]))[0]
+    unit, value = refine(Objective(par, model_tests, measured), np.clip(start, 0.0, 1.0))
+    theta = dict(zip(THETA_NAMES, par.theta(unit[None])[0], strict=True))
+    errors = {n: theta[n] / true_theta[n] - 1 for n in THETA_NAMES}
+    return Nearest(errors, value, par.parameters(unit[None]), model_tests, measured)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", ["vehicle_1", "vehicle_2"])
 def test_independent_vehicle(name: str) -> None:
@@ -84,24 +116,13 @@ def test_independent_vehicle(name: str) -> None:
     result = report.identification
     true_theta = theta_from_parameters(truth)
     # the model: the optimum nearest the truth meets every target and fits each run
-    par = report.parameterization
-    fit = report.fit
-    assert par is not None and fit is not None
-    model_tests = [t.model_test(runs) for t, runs in zip(fit.tests, fit.runs, strict=True)]
-    measured = [
-        [t.estimates[i].drv_db for i in runs] for t, runs in zip(fit.tests, fit.runs, strict=True)
-    ]
-    objective = Objective(par, model_tests, measured)
-    start = par.unit(np.array([[true_theta[n] for n in THETA_NAMES]]))[0]
-    nearest, value = refine(objective, np.clip(start, 0.0, 1.0))
-    theta = dict(zip(THETA_NAMES, par.theta(nearest[None])[0], strict=True))
-    errors = {n: theta[n] / true_theta[n] - 1 for n in THETA_NAMES}
+    nearest = _nearest_the_truth(report, truth)
+    errors, value = nearest.errors, nearest.value
     targets = {**TARGETS, "c23": 2 * TARGETS["c23"]} if name == "vehicle_1" else TARGETS
     misses = {n: round(e, 3) for n, e in errors.items() if abs(e) > targets[n]}
     assert not misses, f"optimum nearest the truth (eq. 17 {value:.4f}): {misses}"
-    params = par.parameters(nearest[None])
-    for test, db_runs in zip(model_tests, measured, strict=True):
-        for model, data in zip(model_drv_db(params, test), db_runs, strict=True):
+    for test, db_runs in zip(nearest.model_tests, nearest.measured, strict=True):
+        for model, data in zip(model_drv_db(nearest.parameters, test), db_runs, strict=True):
             assert nrmse(data, model)[0] < 0.045
     # the search: it reaches the optimum nearest the truth or one that fits better (before
     # stage 2 ended each polish with Levenberg-Marquardt steps, vehicle_1's search stopped in
@@ -124,17 +145,8 @@ def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
     tests, truth, _ = _vehicle("vehicle_2", speed_average="times")
     brief = SearchSettings(popsize=4, generations=1, polish_starts=1, scan_starts=1)
     report = run_identification(tests, reference_parameters(), settings=brief, profile_points=0)
-    par, fit = report.parameterization, report.fit
-    assert par is not None and fit is not None
-    model_tests = [t.model_test(runs) for t, runs in zip(fit.tests, fit.runs, strict=True)]
-    measured = [
-        [t.estimates[i].drv_db for i in runs] for t, runs in zip(fit.tests, fit.runs, strict=True)
-    ]
-    true_theta = theta_from_parameters(truth)
-    start = par.unit(np.array([[true_theta[n] for n in THETA_NAMES]]))[0]
-    nearest, value = refine(Objective(par, model_tests, measured), np.clip(start, 0.0, 1.0))
-    theta = dict(zip(THETA_NAMES, par.theta(nearest[None])[0], strict=True))
-    errors = {n: round(theta[n] / true_theta[n] - 1, 4) for n in THETA_NAMES}
+    nearest = _nearest_the_truth(report, truth)
+    errors = {n: round(e, 4) for n, e in nearest.errors.items()}
     assert max(abs(e) for e in errors.values()) < 0.025, errors
     assert report.fit_objective(truth) < 0.072
-    assert value < 0.0645
+    assert nearest.value < 0.0645
