@@ -51,6 +51,7 @@ from dtid.identification.planning.design import (
     recorded_designs,
 )
 from dtid.identification.planning.information import RESOLUTION_HZ, measure_information
+from dtid.identification.planning.spread import DEFAULT_SPREAD_PERCENT
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import Objective, split_runs
 from dtid.identification.search.parameterization import (
@@ -105,6 +106,13 @@ def main() -> None:
         action="store_true",
         help="record the paper's test first, identify it, plan the follow-up at its result",
     )
+    parser.add_argument(
+        "--spread",
+        type=float,
+        default=DEFAULT_SPREAD_PERCENT,
+        help="plan for vehicles within +-PERCENT of the prior too, as dtid plan does for a "
+        "guessed prior (0 with --adaptive: the prior is then an identification)",
+    )
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
 
@@ -140,6 +148,7 @@ def main() -> None:
         options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
         recorded=recorded,
         held_out_nm=held_out,
+        spread=0.0 if args.adaptive else args.spread / 100.0,
     )
     design = recommendation.design
     assert design is not None, "the paper's test met every target"
@@ -228,6 +237,7 @@ def main() -> None:
                 "adaptive": args.adaptive,
                 "plan": design.as_dict(setpoint),
                 "test_time_s": design.test_time_s,
+                "spread_percent": 0.0 if args.adaptive else args.spread,
                 "unmet_at_prior": [u.as_dict() for u in recommendation.unmet],
                 "linearised_recordings": args.linearised,
                 "searches": args.searches,

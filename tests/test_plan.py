@@ -3,6 +3,7 @@ the shortest test, and the plan file runs (daemon configuration, ``dtid simulate
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from dtid.identification.planning.design import (
     SIGMAS,
     Design,
     predict,
+    predict_worst,
     recommend,
 )
 from dtid.identification.planning.information import (
@@ -31,6 +33,7 @@ from dtid.identification.planning.information import (
     PlanInformation,
     measure_information,
 )
+from dtid.identification.planning.spread import DRIVETRAIN, spread_priors
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import Objective
 from dtid.identification.search.parameterization import (
@@ -154,6 +157,50 @@ def test_an_unreachable_target_is_said_with_what_would_reach_it(
         recommend(information, DEFAULT_TARGETS_PERCENT, 10.0, max_time_s=60)
 
 
+def test_the_vehicles_around_a_prior_cover_its_spread() -> None:
+    """Each drivetrain parameter of the drawn vehicles lies within +-spread of the prior's, one
+    vehicle in each of the range's equal strata (a Latin hypercube); the operating point stays
+    the prior's; the draw repeats."""
+    prior = reference_parameters()
+    drawn = spread_priors(prior, 0.4, 8)
+    assert drawn == spread_priors(prior, 0.4, 8)
+    assert spread_priors(prior, 0.0, 8) == [] and spread_priors(prior, 0.4, 0) == []
+    for name in DRIVETRAIN:
+        ratio = np.array([getattr(p, name) / getattr(prior, name) for p in drawn])
+        assert np.all((ratio >= 0.6) & (ratio <= 1.4)), name
+        strata = np.floor((ratio - 0.6) / 0.1).astype(int)
+        assert sorted(strata) == list(range(8)), name
+    assert {(p.T_loss, p.K) for p in drawn} == {(prior.T_loss, prior.K)}
+    with pytest.raises(ValueError, match="spread"):
+        spread_priors(prior, 1.0)
+
+
+def test_a_plan_for_several_vehicles_meets_the_hardest_ones_targets(
+    information: PlanInformation,
+) -> None:
+    """A vehicle whose every residual is twice the prior's has exactly twice its predicted
+    standard deviations (eq. 17's weights scale out of the sandwich), so a plan for the prior
+    and that vehicle is the plan for that vehicle alone, and says how many of the two miss."""
+    noisy = dataclasses.replace(
+        information,
+        levels=tuple(
+            dataclasses.replace(level, sigma_db=2.0 * level.sigma_db)
+            for level in information.levels
+        ),
+    )
+    both = dataclasses.replace(information, around=(noisy,), spread=0.4)
+    design = Design((5.0, 10.0), (2, 3), 60.0, 1.0, 15.0)
+    alone = predict(information, design)
+    assert predict_worst(both, design) == pytest.approx({n: 2 * v for n, v in alone.items()})
+    found = recommend(both, DEFAULT_TARGETS_PERCENT, 10.0, max_time_s=3600)
+    assert found.design == recommend(noisy, DEFAULT_TARGETS_PERCENT, 10.0, 3600).design
+    assert found.per_vehicle[0] == pytest.approx(predict(information, found.design))
+    short = recommend(both, DEFAULT_TARGETS_PERCENT, 10.0, max_time_s=300)
+    friction = next(u for u in short.unmet if u.name == "Tc12")
+    assert "the prior and 1 vehicles within +-40 %" in friction.reason
+    assert friction.predicted_percent == pytest.approx(100 * SIGMAS * short.per_vehicle[1]["Tc12"])
+
+
 def test_repeats_run_in_rounds() -> None:
     assert in_rounds([10.0, 5.0], [3, 2]) == (5.0, 10.0, 5.0, 10.0, 10.0)
     assert in_rounds([5.0, 10.0], 2) == (5.0, 10.0, 5.0, 10.0)
@@ -212,9 +259,14 @@ def test_dtid_simulate_records_the_planned_test(tmp_path: Path) -> None:
 def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "plan.json"
     args = ["plan", "--seeds", "3", "--max-amplitude", "10", "--max-time", "400"]
+    args += ["--spread-vehicles", "2"]  # and the reference prior's default spread
     assert main([*args, "--json", str(out), "--plot", str(tmp_path / "plan.png")]) == 0
     document = json.loads(out.read_text())
     validate(document, "plan")
+    spread = document["spread"]
+    assert (spread["percent"], spread["vehicles"]) == (40.0, 2)
+    for name, value in document["predicted_precision"].items():
+        assert value >= spread["predicted_precision_at_prior"][name]
     assert not document["meets_targets"]
     assert {u["name"] for u in document["unmet"]} >= {"Tc12"}
     assert document["test_time_s"] <= 400
@@ -225,6 +277,7 @@ def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFix
     assert isinstance(plan_from_file(out), TestPlan)  # the daemon and simulate read it
     assert main(["plan", "--target", "c12=abc"]) == 2
     assert main(["plan", "--max-amplitude", "2"]) == 2
+    assert main(["plan", "--spread", "100"]) == 2
     assert "error:" in capsys.readouterr().err
 
 

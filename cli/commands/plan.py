@@ -29,6 +29,7 @@ from dtid.identification.planning.design import (
     recorded_designs,
 )
 from dtid.identification.planning.information import DEFAULT_SEEDS
+from dtid.identification.planning.spread import DEFAULT_SPREAD_PERCENT, DEFAULT_VEHICLES
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import (
@@ -50,8 +51,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         description="Predict each parameter's precision for a chirp test from eq. (17)'s "
         "linearised information at a prior (simulated with noise and the model's own Monte "
         "Carlo scatter) and search the shortest test (two amplitudes, repeats, chirp duration, "
-        f"band) that meets every target at {SIGMAS:g} sigma. Targets it cannot meet within the "
-        "limits are listed with what would meet them. See docs/planning.md.",
+        f"band) that meets every target at {SIGMAS:g} sigma, at the prior and at vehicles drawn "
+        "around it (--spread). Targets it cannot meet within the limits are listed with what "
+        "would meet them. See docs/planning.md.",
     )
     parser.add_argument(
         "--prior",
@@ -117,6 +119,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=DEFAULT_SEEDS,
         help=f"noise seeds the information is averaged over (default: {DEFAULT_SEEDS})",
     )
+    parser.add_argument(
+        "--spread",
+        type=float,
+        metavar="PERCENT",
+        help="plan for vehicles around the prior too, each drivetrain parameter within "
+        "+-PERCENT of its value: the test must meet every target on each (default: "
+        f"{DEFAULT_SPREAD_PERCENT:g} for a parameter set or the reference, a guess; 0 for an "
+        "identification's JSON)",
+    )
+    parser.add_argument(
+        "--spread-vehicles",
+        type=int,
+        default=DEFAULT_VEHICLES,
+        metavar="N",
+        help=f"vehicles drawn around the prior with --spread (default: {DEFAULT_VEHICLES})",
+    )
     parser.add_argument("--json", type=Path, help="write the plan as JSON ([test] plan = FILE)")
     parser.add_argument("--plot", type=Path, help="plot precision against test time")
     add_interface_options(parser)
@@ -162,6 +180,14 @@ def run(args: argparse.Namespace) -> int:
     if validation < 0:
         raise ConfigError("--validation must be >= 0 N*m (0: no validation chirp)")
     prior = read_prior(args.prior)
+    spread = args.spread
+    if spread is None:
+        guessed = args.prior is None or args.prior.suffix.lower() != ".json"
+        spread = DEFAULT_SPREAD_PERCENT if guessed else 0.0
+    if not 0.0 <= spread < 100.0:
+        raise ConfigError(f"--spread must be in [0, 100) %, not {spread:g}")
+    if args.spread_vehicles < 1:
+        raise ConfigError("--spread-vehicles must be at least 1")
     recorded, held_out, idle = recorded_runs(args)
     setpoint = args.setpoint or idle or IdleController().setpoint_rpm
     info, recommendation = plan_test(
@@ -175,6 +201,8 @@ def run(args: argparse.Namespace) -> int:
         recorded=recorded,
         held_out_nm=held_out,
         vehicle=vehicle_data(args) if args.vehicle else None,
+        spread=spread / 100.0,
+        vehicles=args.spread_vehicles,
     )
     limits = {
         "max_amplitude_nm": cap,
@@ -216,18 +244,31 @@ def print_plan(document: dict) -> None:
             f"{document['test_time_s'] / 60:.1f} min; {verdict}"
         )
     sigmas = document["sigmas"]
+    spread = document["spread"]
     first = "recorded %" if recorded["runs"] else "paper %"
+    at_prior = spread["predicted_precision_at_prior"] if spread["vehicles"] else None
+    if at_prior:
+        print(
+            f"planned for the prior and {spread['vehicles']} vehicles within "
+            f"+-{spread['percent']:g} % of it (--spread): each figure is the worst of them"
+        )
     print(
-        f"{'':>6} {'target %':>9} {first:>10} {'plan %':>9}   (precision at {sigmas:g} sigma; "
-        f"paper's test: {paper['test_time_s'] / 60:.1f} min)"
+        f"{'':>6} {'target %':>9} {first:>10} {'plan %':>9}"
+        + (f" {'at prior':>9} {'vehicles meeting':>17}" if at_prior else "")
+        + f"   (precision at {sigmas:g} sigma; paper's test: {paper['test_time_s'] / 60:.1f} min)"
     )
     targets = document["targets_percent"]
     before = recorded["predicted_precision"] or paper["predicted_precision"]
     for name, value in document["predicted_precision"].items():
         target = f"{targets[name]:g}" if name in targets else "-"
-        print(
+        line = (
             f"{name:>6} {target:>9} {100 * sigmas * before[name]:10.1f} {100 * sigmas * value:9.1f}"
         )
+        if at_prior:
+            meeting = spread["vehicles_meeting"].get(name)
+            share = f"{meeting} of {spread['vehicles'] + 1}" if meeting is not None else "-"
+            line += f" {100 * sigmas * at_prior[name]:9.1f} {share:>17}"
+        print(line)
     for unmet in document["unmet"]:
         print(f"unmet {unmet['name']}: {unmet['reason']}")
     for note in document["notes"]:

@@ -40,6 +40,7 @@ from dtid.identification.planning.information import (
     PlanInformation,
     measure_information,
 )
+from dtid.identification.planning.spread import DEFAULT_VEHICLES, spread_priors
 from dtid.identification.search.identify import AMPLITUDE_MATCH, amplitude_levels, split_runs
 from dtid.identification.search.parameterization import PASSENGER_CAR_RANGES, THETA_NAMES
 from dtid.simulator.angle_grid import N_CYL
@@ -279,6 +280,15 @@ def predict(
     return {name: float(value) for name, value in zip(PRECISION_NAMES, sd, strict=True)}
 
 
+def predict_worst(
+    info: PlanInformation, design: Design | None, recorded: Sequence[Design] = ()
+) -> dict[str, float]:
+    """As :func:`predict`, each parameter's worst over the prior and the vehicles around it
+    (:attr:`PlanInformation.around`); the prior's alone when there are none."""
+    each = [predict(vehicle, design, recorded) for vehicle in info.vehicles]
+    return {name: max(p[name] for p in each) for name in PRECISION_NAMES}
+
+
 def _level(info: PlanInformation, amplitude: float) -> LevelInformation:
     for level in info.levels:
         if abs(level.amplitude_nm - amplitude) <= AMPLITUDE_MATCH * amplitude:
@@ -338,6 +348,9 @@ class Recommendation:
         Designs evaluated.
     recorded
         The runs recorded before, counted in (a follow-up's; empty otherwise).
+    per_vehicle
+        The design's precision at the prior, then at each vehicle around it
+        (:attr:`PlanInformation.vehicles`); ``precision`` is their worst.
     """
 
     design: Design | None
@@ -346,6 +359,7 @@ class Recommendation:
     excluded: dict[float, str]
     designs_tried: int
     recorded: tuple[Design, ...] = ()
+    per_vehicle: tuple[dict[str, float], ...] = ()
 
 
 def recommend(
@@ -391,10 +405,12 @@ def recommend(
     ConfigError
         If fewer than two amplitudes are allowed, or no design fits in ``max_time_s``.
     """
+    vehicles = info.vehicles
     excluded: dict[float, str] = {}
     allowed = []
-    for level in info.levels:
+    for k, level in enumerate(info.levels):
         a = level.amplitude_nm
+        excursion = max(vehicle.levels[k].speed_excursion_rpm for vehicle in vehicles)
         if a > max_amplitude_nm * (1 + 1e-9):
             excluded[a] = f"above the amplitude cap of {max_amplitude_nm:g} N*m"
         elif validation_nm and abs(a - validation_nm) <= AMPLITUDE_MATCH * validation_nm:
@@ -403,13 +419,14 @@ def recommend(
             excluded[a] = "below the validation chirp's (the two largest amplitudes identify)"
         elif any(abs(a - h) <= AMPLITUDE_MATCH * h for h in held_out_nm):
             excluded[a] = "the recorded tests' validation amplitude (it must stay held out)"
-        elif level.speed_excursion_rpm > speed_window_rpm:
+        elif excursion > speed_window_rpm:
+            where = "the prior" if len(vehicles) == 1 else "the prior or a vehicle around it"
             excluded[a] = (
-                f"its chirp took the speed {level.speed_excursion_rpm:.0f} rpm from idle at the "
-                f"prior, outside the {speed_window_rpm:g} rpm safety window"
+                f"its chirp took the speed {excursion:.0f} rpm from idle at {where}, outside "
+                f"the {speed_window_rpm:g} rpm safety window"
             )
         else:
-            allowed.append(level)
+            allowed.append(k)
     if len(allowed) < 2:
         raise ConfigError(
             "fewer than two amplitudes are allowed ("
@@ -420,27 +437,26 @@ def recommend(
     index = [PRECISION_NAMES.index(n) for n in names]
     needed = np.array([targets[n] / 100.0 / SIGMAS for n in names])
     recorded = tuple(recorded)
-    a0, b0 = information(info, recorded)
+    before = [information(vehicle, recorded) for vehicle in vehicles]
     if recorded:
-        so_far = predict(info, None, recorded)
+        so_far = predict_worst(info, None, recorded)
         if all(so_far[n] <= target for n, target in zip(names, needed, strict=True)):
-            return Recommendation(None, so_far, (), excluded, 0, recorded)
+            per_vehicle = tuple(predict(vehicle, None, recorded) for vehicle in vehicles)
+            return Recommendation(None, so_far, (), excluded, 0, recorded, per_vehicle)
     counts = np.array(list(itertools.product(range(1, MAX_REPEATS + 1), repeat=2)))
     best: tuple[tuple[float, float], Design] | None = None
     closest: tuple[float, Design] | None = None
     tried = 0
     for low, high in itertools.combinations(allowed, 2):
         for duration, band in itertools.product(DURATIONS_S, bands(info)):
-            blocks = [_block(info, level, duration, band) for level in (low, high)]
-            if blocks[0] is None or blocks[1] is None:
+            worst = _worst_ratio(
+                vehicles, before, (low, high), duration, band, counts, index, needed
+            )
+            if worst is None:
                 continue
-            a = a0 + counts[:, 0, None, None] * blocks[0].a + counts[:, 1, None, None] * blocks[1].a
-            b = b0 + counts[:, 0, None, None] * blocks[0].b + counts[:, 1, None, None] * blocks[1].b
-            sd = _relative_sd(info, _sandwich(a, b))[:, index]
-            worst = np.max(sd / needed, axis=1)
             for (n_low, n_high), ratio in zip(counts, worst, strict=True):
                 design = Design(
-                    (low.amplitude_nm, high.amplitude_nm),
+                    (info.levels[low].amplitude_nm, info.levels[high].amplitude_nm),
                     (int(n_low), int(n_high)),
                     duration,
                     *band,
@@ -463,13 +479,39 @@ def recommend(
             f"{shortest_test_s(validation_nm):g} s"
         )
     design = best[1] if best is not None else closest[1]
-    precision = predict(info, design, recorded)
+    per_vehicle = tuple(predict(vehicle, design, recorded) for vehicle in vehicles)
+    precision = {n: max(p[n] for p in per_vehicle) for n in PRECISION_NAMES}
     unmet = tuple(
-        _unmet(name, targets[name], precision[name], design, max_time_s, recorded)
+        _unmet(name, targets[name], per_vehicle, design, max_time_s, recorded, info.spread)
         for name in names
         if SIGMAS * precision[name] * 100.0 > targets[name]
     )
-    return Recommendation(design, precision, unmet, excluded, tried, recorded)
+    return Recommendation(design, precision, unmet, excluded, tried, recorded, per_vehicle)
+
+
+def _worst_ratio(
+    vehicles: Sequence[PlanInformation],
+    before: Sequence[tuple[np.ndarray, np.ndarray]],
+    pair: tuple[int, int],
+    duration: float,
+    band: tuple[float, float],
+    counts: np.ndarray,
+    index: Sequence[int],
+    needed: np.ndarray,
+) -> np.ndarray | None:
+    """For every pair of repeat counts, the largest predicted precision over target of any
+    targeted parameter at any vehicle (1: every target just met); None when the band leaves
+    too few bins."""
+    worst = np.zeros(len(counts))
+    for vehicle, (a0, b0) in zip(vehicles, before, strict=True):
+        blocks = [_block(vehicle, vehicle.levels[k], duration, band) for k in pair]
+        if blocks[0] is None or blocks[1] is None:
+            return None
+        a = a0 + counts[:, 0, None, None] * blocks[0].a + counts[:, 1, None, None] * blocks[1].a
+        b = b0 + counts[:, 0, None, None] * blocks[0].b + counts[:, 1, None, None] * blocks[1].b
+        sd = _relative_sd(vehicle, _sandwich(a, b))[:, index]
+        worst = np.maximum(worst, np.max(sd / needed, axis=1))
+    return worst
 
 
 def run_designs(tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]) -> list[Design]:
@@ -534,6 +576,8 @@ def plan_test(
     recorded: Sequence[Design] = (),
     held_out_nm: Sequence[float] = (),
     vehicle: VehicleData | None = None,
+    spread: float = 0.0,
+    vehicles: int = DEFAULT_VEHICLES,
 ) -> tuple[PlanInformation, Recommendation]:
     """Measure the candidate amplitudes' information at a prior and recommend a test.
 
@@ -543,7 +587,9 @@ def plan_test(
     default); ``recorded`` the identifying runs recorded so far (a follow-up test) and
     ``held_out_nm`` the amplitudes of their tests' validation runs; ``vehicle`` the engine and
     speed sensor the user gave (``--vehicle``), which then both the simulated vehicle and the
-    model side have.
+    model side have. With ``spread`` (relative, 1) the information is measured at ``vehicles``
+    drivetrains around the prior too (:func:`dtid.identification.planning.spread.spread_priors`)
+    and the test must meet every target at each of them.
     """
     options = options or SimulationOptions()
     if vehicle is not None:
@@ -558,9 +604,15 @@ def plan_test(
     for extra in [validation_nm, *(a for d in recorded for a in d.amplitudes_nm)]:
         if extra and all(abs(a - extra) > AMPLITUDE_MATCH * extra for a in amplitudes):
             amplitudes.append(extra)
+    around = [
+        measure_information(
+            planning_prior(draw)[0], amplitudes, options=options, seeds=seeds, vehicle=vehicle
+        )
+        for draw in spread_priors(prior, spread, vehicles)
+    ]
     prior, notes = planning_prior(prior)
     info = measure_information(prior, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
-    info = dataclasses.replace(info, notes=tuple(notes))
+    info = dataclasses.replace(info, notes=tuple(notes), around=tuple(around), spread=spread)
     recommendation = recommend(
         info,
         targets,
@@ -588,20 +640,31 @@ def _chirp_time(design: Design) -> float:
 def _unmet(
     name: str,
     target: float,
-    sd: float,
+    per_vehicle: Sequence[Mapping[str, float]],
     design: Design,
     max_time_s: float,
     recorded: Sequence[Design],
+    spread: float,
 ) -> Unmet:
-    predicted = SIGMAS * sd * 100.0
+    each = [SIGMAS * p[name] * 100.0 for p in per_vehicle]
+    predicted = max(each)
     earlier = sum(_chirp_time(d) for d in recorded)
     chirp_time = _chirp_time(design)
     needed = (earlier + chirp_time) * (predicted / target) ** 2 - earlier
     amplitudes = " and ".join(f"{a:g}" for a in design.amplitudes_nm)
+    where = ""
+    if len(each) > 1:
+        missed = sum(value > target for value in each)
+        where = (
+            f" at the worst of the prior and {len(each) - 1} vehicles within "
+            f"+-{100 * spread:g} % of it ({each[0]:.1f} % at the prior; {missed} of "
+            f"{len(each)} miss)"
+        )
     reason = (
-        f"{predicted:.1f} % at {SIGMAS:g} sigma within --max-time {max_time_s:g} s; the precision "
-        f"grows with the square root of the chirp time, so about {needed / 60:.0f} min of "
-        f"chirps at {amplitudes} N*m (now {chirp_time / 60:.0f} min) would reach {target:g} %"
+        f"{predicted:.1f} % at {SIGMAS:g} sigma{where} within --max-time {max_time_s:g} s; the "
+        f"precision grows with the square root of the chirp time, so about {needed / 60:.0f} "
+        f"min of chirps at {amplitudes} N*m (now {chirp_time / 60:.0f} min) would reach "
+        f"{target:g} %"
     )
     return Unmet(name, target, predicted, reason)
 
@@ -617,7 +680,7 @@ def plan_document(
     the amplitudes that identify, the recorded runs and their precision, and the paper's plan
     beside it."""
     design = recommendation.design
-    paper = predict(info, PAPER_DESIGN)
+    paper = predict_worst(info, PAPER_DESIGN)
     recorded = recommendation.recorded
     identify = sorted(
         {a for d in [*recorded, *([design] if design else [])] for a in d.amplitudes_nm}
@@ -637,7 +700,9 @@ def plan_document(
                 }
                 for d in recorded
             ],
-            "predicted_precision": _rounded(predict(info, None, recorded)) if recorded else None,
+            "predicted_precision": (
+                _rounded(predict_worst(info, None, recorded)) if recorded else None
+            ),
         },
         "unmet": [u.as_dict() for u in recommendation.unmet],
         "meets_targets": not recommendation.unmet,
@@ -650,6 +715,17 @@ def plan_document(
             "test_time_s": PAPER_DESIGN.test_time_s,
         },
         "prior": info.prior.as_dict(),
+        "spread": {
+            "percent": round(100.0 * info.spread, 3),
+            "vehicles": len(info.around),
+            "predicted_precision_at_prior": (
+                _rounded(recommendation.per_vehicle[0]) if recommendation.per_vehicle else None
+            ),
+            "vehicles_meeting": {
+                name: sum(SIGMAS * 100.0 * p[name] <= target for p in recommendation.per_vehicle)
+                for name, target in targets.items()
+            },
+        },
         "notes": list(info.notes),
         "information": {
             "amplitudes_nm": list(info.amplitudes_nm),

@@ -4,7 +4,7 @@ Two panels, the paper's plan and the recommended one, each with its repeats scal
 chirp per amplitude to twice the recommended test's duration: the precision at
 :data:`~dtid.identification.planning.design.SIGMAS` sigma (%, log scale) of every parameter
 with a target against the whole test's time, the targets as dotted lines and each plan itself
-as dots.
+as dots. Where the plan holds for vehicles around the prior, each curve is the worst of them.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from dtid.identification.planning.design import (
     SIGMAS,
     Design,
     Recommendation,
-    predict,
+    predict_worst,
     scaled,
 )
 from dtid.identification.planning.information import PlanInformation
@@ -58,8 +58,8 @@ def plan_figure(
         )
         variants = sorted({scaled(shown, f) for f in factors}, key=lambda d: d.test_time_s)
         times = [d.test_time_s / 60 for d in variants]
-        curves = [predict(info, d, before) for d in variants]
-        point = predict(info, shown, before)
+        curves = [predict_worst(info, d, before) for d in variants]
+        point = predict_worst(info, shown, before)
         for name in names:
             ax.plot(
                 times,
@@ -83,6 +83,12 @@ def plan_figure(
         ax.set_yscale("log")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel(f"predicted precision at {SIGMAS:g} sigma, % (dotted: targets)")
+    if info.around:
+        figure.suptitle(
+            f"each curve the worst of the prior and {len(info.around)} vehicles within "
+            f"+-{100 * info.spread:g} % of it",
+            fontsize=9,
+        )
     axes[-1].legend(fontsize=7, ncol=2, loc="upper right")
     return figure
 

@@ -122,6 +122,12 @@ class PlanInformation:
         Noise seeds averaged.
     notes
         What was changed of the prior to plan for it, one sentence each.
+    around
+        The same measured at vehicles the prior stands for
+        (:mod:`dtid.identification.planning.spread`), at the same amplitudes; empty when the
+        plan is for the prior alone.
+    spread
+        Their relative half-width around the prior, 1 (0: none).
     """
 
     prior: DrivetrainParameters
@@ -131,6 +137,13 @@ class PlanInformation:
     setpoint_rpm: float
     seeds: int
     notes: tuple[str, ...] = ()
+    around: tuple[PlanInformation, ...] = ()
+    spread: float = 0.0
+
+    @property
+    def vehicles(self) -> tuple[PlanInformation, ...]:
+        """The prior's information and every vehicle's around it."""
+        return (self, *self.around)
 
     @property
     def amplitudes_nm(self) -> tuple[float, ...]:
