@@ -10,6 +10,12 @@ fits every run at an identifying amplitude). The search enumerates designs and k
 with the shortest test time that meets every target; when none within the limits does, the one
 that comes closest, with what each unmet target would need.
 
+With vehicles around the prior (:mod:`dtid.identification.planning.spread`) a design must
+meet every target at each of them; when none within the limits does, the closest is the one
+whose vehicles' shortfalls (each vehicle's largest precision over target) have the smallest
+geometric mean: the typical vehicle's, not the single hardest one's, which would spend the
+test on one vehicle's friction.
+
 Why two identifying amplitudes: eq. (23) needs two to split a stiffness from its free play, a
 third adds less than repeating the better two (at the reference vehicle, no three amplitudes
 sharing the recommended test's 23 chirps come closer to the targets), and
@@ -381,7 +387,8 @@ def recommend(
     Parameters
     ----------
     info
-        The candidate amplitudes' information.
+        The candidate amplitudes' information, and at the vehicles around the prior
+        (:attr:`PlanInformation.around`), each of which must meet every target.
     targets
         Target per parameter name, % at :data:`SIGMAS` sigma.
     max_amplitude_nm
@@ -449,12 +456,12 @@ def recommend(
     tried = 0
     for low, high in itertools.combinations(allowed, 2):
         for duration, band in itertools.product(DURATIONS_S, bands(info)):
-            worst = _worst_ratio(
-                vehicles, before, (low, high), duration, band, counts, index, needed
-            )
-            if worst is None:
+            ratios = _ratios(vehicles, before, (low, high), duration, band, counts, index, needed)
+            if ratios is None:
                 continue
-            for (n_low, n_high), ratio in zip(counts, worst, strict=True):
+            worst = np.max(ratios, axis=0)
+            typical = np.exp(np.mean(np.log(ratios), axis=0))
+            for (n_low, n_high), ratio, shortfall in zip(counts, worst, typical, strict=True):
                 design = Design(
                     (info.levels[low].amplitude_nm, info.levels[high].amplitude_nm),
                     (int(n_low), int(n_high)),
@@ -469,8 +476,8 @@ def recommend(
                     key = (design.test_time_s, float(ratio))
                     if best is None or key < best[0]:
                         best = (key, design)
-                if closest is None or ratio < closest[0]:
-                    closest = (float(ratio), design)
+                if closest is None or shortfall < closest[0]:
+                    closest = (float(shortfall), design)
     if closest is None:
         raise ConfigError(
             f"no test fits in --max-time {max_time_s:g} s: the shortest (one "
@@ -489,7 +496,7 @@ def recommend(
     return Recommendation(design, precision, unmet, excluded, tried, recorded, per_vehicle)
 
 
-def _worst_ratio(
+def _ratios(
     vehicles: Sequence[PlanInformation],
     before: Sequence[tuple[np.ndarray, np.ndarray]],
     pair: tuple[int, int],
@@ -499,10 +506,10 @@ def _worst_ratio(
     index: Sequence[int],
     needed: np.ndarray,
 ) -> np.ndarray | None:
-    """For every pair of repeat counts, the largest predicted precision over target of any
-    targeted parameter at any vehicle (1: every target just met); None when the band leaves
-    too few bins."""
-    worst = np.zeros(len(counts))
+    """(vehicles, counts): for every pair of repeat counts, each vehicle's largest predicted
+    precision over target of any targeted parameter (1: its every target just met); None when
+    the band leaves too few bins."""
+    ratios = []
     for vehicle, (a0, b0) in zip(vehicles, before, strict=True):
         blocks = [_block(vehicle, vehicle.levels[k], duration, band) for k in pair]
         if blocks[0] is None or blocks[1] is None:
@@ -510,8 +517,8 @@ def _worst_ratio(
         a = a0 + counts[:, 0, None, None] * blocks[0].a + counts[:, 1, None, None] * blocks[1].a
         b = b0 + counts[:, 0, None, None] * blocks[0].b + counts[:, 1, None, None] * blocks[1].b
         sd = _relative_sd(vehicle, _sandwich(a, b))[:, index]
-        worst = np.maximum(worst, np.max(sd / needed, axis=1))
-    return worst
+        ratios.append(np.max(sd / needed, axis=1))
+    return np.array(ratios)
 
 
 def run_designs(tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]) -> list[Design]:
