@@ -51,7 +51,7 @@ from dtid.identification.planning.design import (
     recorded_designs,
 )
 from dtid.identification.planning.information import RESOLUTION_HZ, measure_information
-from dtid.identification.planning.spread import DEFAULT_SPREAD_PERCENT
+from dtid.identification.planning.spread import DEFAULT_SPREAD_PERCENT, RECORDED
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import Objective, split_runs
 from dtid.identification.search.parameterization import (
@@ -111,7 +111,8 @@ def main() -> None:
         type=float,
         default=DEFAULT_SPREAD_PERCENT,
         help="plan for vehicles within +-PERCENT of the prior too, as dtid plan does for a "
-        "guessed prior (0 with --adaptive: the prior is then an identification)",
+        "guessed prior (with --adaptive each parameter within what the paper's test left "
+        "open, as dtid plan --after does)",
     )
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
@@ -139,7 +140,7 @@ def main() -> None:
         setpoint = first.setpoint_rpm
     else:
         prior = reference_parameters()
-    _, recommendation = plan_test(
+    information_at_prior, recommendation = plan_test(
         prior,
         DEFAULT_TARGETS_PERCENT,
         SafetyConfig(),
@@ -148,7 +149,7 @@ def main() -> None:
         options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
         recorded=recorded,
         held_out_nm=held_out,
-        spread=0.0 if args.adaptive else args.spread / 100.0,
+        spread=RECORDED if args.adaptive else args.spread / 100.0,
     )
     design = recommendation.design
     assert design is not None, "the paper's test met every target"
@@ -237,7 +238,9 @@ def main() -> None:
                 "adaptive": args.adaptive,
                 "plan": design.as_dict(setpoint),
                 "test_time_s": design.test_time_s,
-                "spread_percent": 0.0 if args.adaptive else args.spread,
+                "spread_percent": {
+                    n: round(100 * w, 1) for n, w in information_at_prior.spread.items()
+                },
                 "unmet_at_prior": [u.as_dict() for u in recommendation.unmet],
                 "linearised_recordings": args.linearised,
                 "searches": args.searches,

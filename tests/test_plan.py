@@ -27,13 +27,14 @@ from dtid.identification.planning.design import (
     predict,
     predict_worst,
     recommend,
+    recorded_spread,
 )
 from dtid.identification.planning.information import (
     RESOLUTION_HZ,
     PlanInformation,
     measure_information,
 )
-from dtid.identification.planning.spread import DRIVETRAIN, spread_priors
+from dtid.identification.planning.spread import DRIVETRAIN, MAX_SPREAD, spread_priors
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import Objective
 from dtid.identification.search.parameterization import (
@@ -173,6 +174,27 @@ def test_the_vehicles_around_a_prior_cover_its_spread() -> None:
     assert {(p.T_loss, p.K) for p in drawn} == {(prior.T_loss, prior.K)}
     with pytest.raises(ValueError, match="spread"):
         spread_priors(prior, 1.0)
+    only_friction = spread_priors(prior, {"Tc12": 0.9}, 4)
+    assert len({p.Tc12 for p in only_friction}) == 4
+    assert {p.replace(Tc12=prior.Tc12) for p in only_friction} == {prior}
+
+
+def test_a_follow_up_spreads_each_parameter_by_what_the_first_test_left_open(
+    information: PlanInformation,
+) -> None:
+    """After the paper's test, each parameter's half-width is twice its predicted precision,
+    capped where a parameter would reach zero: the friction (+-119 %) at 90 %."""
+    paper = [
+        Design((5.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
+        Design((10.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
+    ]
+    widths = recorded_spread(information, paper)
+    precision = predict(information, None, paper)
+    assert set(widths) == set(DRIVETRAIN)
+    assert widths["Tc12"] == MAX_SPREAD
+    for name in ("J1", "c12", "eps12"):
+        assert widths[name] == pytest.approx(SIGMAS * precision[name])
+    assert recorded_spread(information, []) == {}
 
 
 def test_a_plan_for_several_vehicles_meets_the_hardest_ones_targets(
@@ -188,7 +210,7 @@ def test_a_plan_for_several_vehicles_meets_the_hardest_ones_targets(
             for level in information.levels
         ),
     )
-    both = dataclasses.replace(information, around=(noisy,), spread=0.4)
+    both = dataclasses.replace(information, around=(noisy,), spread=dict.fromkeys(DRIVETRAIN, 0.4))
     design = Design((5.0, 10.0), (2, 3), 60.0, 1.0, 15.0)
     alone = predict(information, design)
     assert predict_worst(both, design) == pytest.approx({n: 2 * v for n, v in alone.items()})
@@ -265,6 +287,7 @@ def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFix
     validate(document, "plan")
     spread = document["spread"]
     assert (spread["percent"], spread["vehicles"]) == (40.0, 2)
+    assert set(spread["percent_by_parameter"].values()) == {40.0}
     for name, value in document["predicted_precision"].items():
         assert value >= spread["predicted_precision_at_prior"][name]
     assert not document["meets_targets"]
@@ -278,6 +301,7 @@ def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFix
     assert main(["plan", "--target", "c12=abc"]) == 2
     assert main(["plan", "--max-amplitude", "2"]) == 2
     assert main(["plan", "--spread", "100"]) == 2
+    assert main(["plan", "--spread", "recorded"]) == 2  # needs --after's recordings
     assert "error:" in capsys.readouterr().err
 
 
@@ -335,9 +359,12 @@ def test_dtid_plan_after_a_recording_plans_its_follow_up(
     )
     out = tmp_path / "follow.json"
     args = ["plan", "--prior", str(identification), "--after", str(recording), "--seeds", "3"]
+    args += ["--spread-vehicles", "2"]  # spread by what the recording leaves open (default)
     assert main([*args, "--max-amplitude", "10", "--json", str(out)]) == 0
     document = json.loads(out.read_text())
     validate(document, "plan")
+    widths = document["spread"]["percent_by_parameter"]
+    assert widths["Tc12"] == 100 * MAX_SPREAD and widths["J1"] < 10
     runs = document["recorded"]["runs"]
     assert sorted(round(r["amplitude_nm"]) for r in runs) == [5, 10]
     assert all(abs(r["duration_s"] - 30) < 0.5 for r in runs)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -29,7 +30,13 @@ from dtid.identification.planning.design import (
     recorded_designs,
 )
 from dtid.identification.planning.information import DEFAULT_SEEDS
-from dtid.identification.planning.spread import DEFAULT_SPREAD_PERCENT, DEFAULT_VEHICLES
+from dtid.identification.planning.spread import (
+    DEFAULT_SPREAD_PERCENT,
+    DEFAULT_VEHICLES,
+    MAX_SPREAD,
+    RECORDED,
+    describe,
+)
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import (
@@ -121,12 +128,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--spread",
-        type=float,
-        metavar="PERCENT",
+        metavar="PERCENT|recorded",
         help="plan for vehicles around the prior too, each drivetrain parameter within "
-        "+-PERCENT of its value: the test must meet every target on each (default: "
-        f"{DEFAULT_SPREAD_PERCENT:g} for a parameter set or the reference, a guess; 0 for an "
-        "identification's JSON)",
+        "+-PERCENT of its value, or with 'recorded' within what --after's runs leave open (2 "
+        "sigma of their precision, each parameter its own): the test must meet every target on "
+        f"each (default: {DEFAULT_SPREAD_PERCENT:g} for a parameter set or the reference, a "
+        "guess; 'recorded' for an identification's JSON with --after; 0 for one without)",
     )
     parser.add_argument(
         "--spread-vehicles",
@@ -167,6 +174,30 @@ def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], list[float], 
     return designs, held_out, float(np.mean([t.setpoint_rpm for t in tests]))
 
 
+def planned_spread(args: argparse.Namespace) -> float | str:
+    """--spread as :func:`dtid.identification.planning.design.plan_test` takes it: a relative
+    half-width or ``recorded``, with the defaults the option's help gives."""
+    guessed = args.prior is None or args.prior.suffix.lower() != ".json"
+    value = args.spread
+    if value is None:
+        if guessed:
+            return DEFAULT_SPREAD_PERCENT / 100.0
+        return RECORDED if args.after else 0.0
+    if value == RECORDED:
+        if not args.after:
+            raise ConfigError("--spread recorded needs the recordings: give them with --after")
+        return RECORDED
+    try:
+        percent = float(value)
+    except ValueError:
+        percent = math.nan
+    if not 0.0 <= percent <= 100.0 * MAX_SPREAD:
+        raise ConfigError(
+            f"--spread {value!r}: give a percentage from 0 to {100 * MAX_SPREAD:g} or 'recorded'"
+        )
+    return percent / 100.0
+
+
 def run(args: argparse.Namespace) -> int:
     """Measure the information, search, print, write."""
     targets = parse_targets(args.target)
@@ -180,12 +211,7 @@ def run(args: argparse.Namespace) -> int:
     if validation < 0:
         raise ConfigError("--validation must be >= 0 N*m (0: no validation chirp)")
     prior = read_prior(args.prior)
-    spread = args.spread
-    if spread is None:
-        guessed = args.prior is None or args.prior.suffix.lower() != ".json"
-        spread = DEFAULT_SPREAD_PERCENT if guessed else 0.0
-    if not 0.0 <= spread < 100.0:
-        raise ConfigError(f"--spread must be in [0, 100) %, not {spread:g}")
+    spread = planned_spread(args)
     if args.spread_vehicles < 1:
         raise ConfigError("--spread-vehicles must be at least 1")
     recorded, held_out, idle = recorded_runs(args)
@@ -201,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
         recorded=recorded,
         held_out_nm=held_out,
         vehicle=vehicle_data(args) if args.vehicle else None,
-        spread=spread / 100.0,
+        spread=spread,
         vehicles=args.spread_vehicles,
     )
     limits = {
@@ -248,9 +274,10 @@ def print_plan(document: dict) -> None:
     first = "recorded %" if recorded["runs"] else "paper %"
     at_prior = spread["predicted_precision_at_prior"] if spread["vehicles"] else None
     if at_prior:
+        within = describe({n: v / 100.0 for n, v in spread["percent_by_parameter"].items()})
         print(
-            f"planned for the prior and {spread['vehicles']} vehicles within "
-            f"+-{spread['percent']:g} % of it (--spread): each figure is the worst of them"
+            f"planned for the prior and {spread['vehicles']} vehicles within {within} of it "
+            "(--spread): each figure is the worst of them"
         )
     print(
         f"{'':>6} {'target %':>9} {first:>10} {'plan %':>9}"

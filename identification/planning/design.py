@@ -46,7 +46,15 @@ from dtid.identification.planning.information import (
     PlanInformation,
     measure_information,
 )
-from dtid.identification.planning.spread import DEFAULT_VEHICLES, spread_priors
+from dtid.identification.planning.spread import (
+    DEFAULT_VEHICLES,
+    DRIVETRAIN,
+    MAX_SPREAD,
+    RECORDED,
+    describe,
+    half_widths,
+    spread_priors,
+)
 from dtid.identification.search.identify import AMPLITUDE_MATCH, amplitude_levels, split_runs
 from dtid.identification.search.parameterization import PASSENGER_CAR_RANGES, THETA_NAMES
 from dtid.simulator.angle_grid import N_CYL
@@ -583,7 +591,7 @@ def plan_test(
     recorded: Sequence[Design] = (),
     held_out_nm: Sequence[float] = (),
     vehicle: VehicleData | None = None,
-    spread: float = 0.0,
+    spread: float | Mapping[str, float] | str = 0.0,
     vehicles: int = DEFAULT_VEHICLES,
 ) -> tuple[PlanInformation, Recommendation]:
     """Measure the candidate amplitudes' information at a prior and recommend a test.
@@ -594,9 +602,11 @@ def plan_test(
     default); ``recorded`` the identifying runs recorded so far (a follow-up test) and
     ``held_out_nm`` the amplitudes of their tests' validation runs; ``vehicle`` the engine and
     speed sensor the user gave (``--vehicle``), which then both the simulated vehicle and the
-    model side have. With ``spread`` (relative, 1) the information is measured at ``vehicles``
-    drivetrains around the prior too (:func:`dtid.identification.planning.spread.spread_priors`)
-    and the test must meet every target at each of them.
+    model side have. With ``spread`` (relative half-widths, 1, for every drivetrain parameter
+    or by name; :data:`~dtid.identification.planning.spread.RECORDED` for the recorded runs'
+    own precision) the information is measured at ``vehicles`` drivetrains around the prior too
+    (:func:`dtid.identification.planning.spread.spread_priors`) and the test must meet every
+    target at each of them.
     """
     options = options or SimulationOptions()
     if vehicle is not None:
@@ -611,15 +621,23 @@ def plan_test(
     for extra in [validation_nm, *(a for d in recorded for a in d.amplitudes_nm)]:
         if extra and all(abs(a - extra) > AMPLITUDE_MATCH * extra for a in amplitudes):
             amplitudes.append(extra)
+    centre, notes = planning_prior(prior)
+    info = measure_information(centre, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
+    if spread == RECORDED:
+        spread = recorded_spread(info, recorded)
+    widths = half_widths(spread)  # type: ignore[arg-type]
     around = [
         measure_information(
             planning_prior(draw)[0], amplitudes, options=options, seeds=seeds, vehicle=vehicle
         )
-        for draw in spread_priors(prior, spread, vehicles)
+        for draw in spread_priors(prior, widths, vehicles)
     ]
-    prior, notes = planning_prior(prior)
-    info = measure_information(prior, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
-    info = dataclasses.replace(info, notes=tuple(notes), around=tuple(around), spread=spread)
+    info = dataclasses.replace(
+        info,
+        notes=tuple(notes),
+        around=tuple(around),
+        spread=widths if around else {},
+    )
     recommendation = recommend(
         info,
         targets,
@@ -631,6 +649,16 @@ def plan_test(
         held_out_nm=held_out_nm,
     )
     return info, recommendation
+
+
+def recorded_spread(info: PlanInformation, recorded: Sequence[Design]) -> dict[str, float]:
+    """Each drivetrain parameter's half-width the recorded runs leave open at the prior:
+    :data:`SIGMAS` times their predicted relative precision, at most
+    :data:`~dtid.identification.planning.spread.MAX_SPREAD` (none without recorded runs)."""
+    if not recorded:
+        return {}
+    precision = predict(info, None, recorded)
+    return {name: min(SIGMAS * precision[name], MAX_SPREAD) for name in DRIVETRAIN}
 
 
 def shortest_test_s(validation_nm: float = 0.0) -> float:
@@ -651,7 +679,7 @@ def _unmet(
     design: Design,
     max_time_s: float,
     recorded: Sequence[Design],
-    spread: float,
+    spread: Mapping[str, float],
 ) -> Unmet:
     each = [SIGMAS * p[name] * 100.0 for p in per_vehicle]
     predicted = max(each)
@@ -664,7 +692,7 @@ def _unmet(
         missed = sum(value > target for value in each)
         where = (
             f" at the worst of the prior and {len(each) - 1} vehicles within "
-            f"+-{100 * spread:g} % of it ({each[0]:.1f} % at the prior; {missed} of "
+            f"{describe(spread)} of it ({each[0]:.1f} % at the prior; {missed} of "
             f"{len(each)} miss)"
         )
     reason = (
@@ -723,7 +751,8 @@ def plan_document(
         },
         "prior": info.prior.as_dict(),
         "spread": {
-            "percent": round(100.0 * info.spread, 3),
+            "percent": round(100.0 * max(info.spread.values(), default=0.0), 3),
+            "percent_by_parameter": {n: round(100.0 * w, 3) for n, w in info.spread.items()},
             "vehicles": len(info.around),
             "predicted_precision_at_prior": (
                 _rounded(recommendation.per_vehicle[0]) if recommendation.per_vehicle else None

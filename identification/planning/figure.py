@@ -25,6 +25,7 @@ from dtid.identification.planning.design import (
     scaled,
 )
 from dtid.identification.planning.information import PlanInformation
+from dtid.identification.planning.spread import describe
 from dtid.identification.plots import new_figure, save_figure
 
 if TYPE_CHECKING:
@@ -86,7 +87,7 @@ def plan_figure(
     if info.around:
         figure.suptitle(
             f"each curve the worst of the prior and {len(info.around)} vehicles within "
-            f"+-{100 * info.spread:g} % of it",
+            f"{describe(info.spread)} of it",
             fontsize=9,
         )
     axes[-1].legend(fontsize=7, ncol=2, loc="upper right")

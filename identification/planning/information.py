@@ -127,7 +127,7 @@ class PlanInformation:
         (:mod:`dtid.identification.planning.spread`), at the same amplitudes; empty when the
         plan is for the prior alone.
     spread
-        Their relative half-width around the prior, 1 (0: none).
+        Their relative half-width around the prior by drivetrain parameter, 1 (empty: none).
     """
 
     prior: DrivetrainParameters
@@ -138,7 +138,7 @@ class PlanInformation:
     seeds: int
     notes: tuple[str, ...] = ()
     around: tuple[PlanInformation, ...] = ()
-    spread: float = 0.0
+    spread: dict[str, float] = dataclasses.field(default_factory=dict)
 
     @property
     def vehicles(self) -> tuple[PlanInformation, ...]:

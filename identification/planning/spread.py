@@ -7,13 +7,17 @@ at the prior alone, a test can promise a precision that the vehicle then misses 
 warning. So ``dtid plan`` also measures the information at vehicles drawn around the prior,
 every drivetrain parameter within +-``spread`` of its value (a Latin hypercube: each
 parameter's range is covered evenly however few vehicles are drawn), and the search asks the
-targets of every one of them (a minimax design).
+targets of every one of them (a minimax design). A follow-up test, planned at what a first test
+identified, spreads each parameter by what the first test leaves open (:data:`RECORDED`).
 
 The draws are fixed by :data:`DRAW_SEED`: a plan is repeatable.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
+import numpy as np
 from scipy.stats import qmc
 
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
@@ -32,17 +36,59 @@ DRIVETRAIN = tuple(name for name in NAMES if name not in ("T_loss", "K"))
 torque and the engine gain are the operating point's, measured on the vehicle)."""
 
 
+MAX_SPREAD = 0.9
+"""Largest relative half-width a parameter is drawn within (it stays positive)."""
+RECORDED = "recorded"
+"""``spread`` that asks for each parameter's own: :data:`SIGMAS` times the relative precision
+the runs recorded so far reach (a follow-up test: the vehicles those runs cannot tell from the
+identified one), up to :data:`MAX_SPREAD`."""
+
+
+def half_widths(spread: float | Mapping[str, float]) -> dict[str, float]:
+    """Each drawn parameter's relative half-width: one for all, or by name (missing: 0).
+
+    Raises
+    ------
+    ValueError
+        If a half-width is not in [0, :data:`MAX_SPREAD`] or a name is not a drivetrain
+        parameter.
+    """
+    if isinstance(spread, Mapping):
+        unknown = set(spread) - set(DRIVETRAIN)
+        if unknown:
+            raise ValueError(f"no drivetrain parameter {sorted(unknown)[0]!r} to spread")
+        widths = {name: float(spread.get(name, 0.0)) for name in DRIVETRAIN}
+    else:
+        widths = dict.fromkeys(DRIVETRAIN, float(spread))
+    bad = [f"{n} {w:g}" for n, w in widths.items() if not 0.0 <= w <= MAX_SPREAD]
+    if bad:
+        raise ValueError(f"the spread must be in [0, {MAX_SPREAD:g}], not {bad[0]}")
+    return widths
+
+
+def describe(widths: Mapping[str, float]) -> str:
+    """``+-40 %`` for one half-width, ``+-3-90 % by parameter`` for several."""
+    values = sorted({round(100.0 * w, 1) for w in widths.values()})
+    if len(values) == 1:
+        return f"+-{values[0]:g} %"
+    return f"+-{values[0]:g}-{values[-1]:g} % by parameter"
+
+
 def spread_priors(
-    prior: DrivetrainParameters, spread: float, count: int = DEFAULT_VEHICLES
+    prior: DrivetrainParameters,
+    spread: float | Mapping[str, float],
+    count: int = DEFAULT_VEHICLES,
 ) -> list[DrivetrainParameters]:
-    """Drivetrains around a prior, each parameter uniformly within +-``spread`` of its value.
+    """Drivetrains around a prior, each parameter uniformly within +-its half-width of its
+    value.
 
     Parameters
     ----------
     prior
         The centre.
     spread
-        Relative half-width, 1 (0.4 for +-40 %); below 1.
+        Relative half-width, 1 (0.4 for +-40 %), for every drivetrain parameter or by name
+        (:func:`half_widths`).
     count
         Vehicles to draw.
 
@@ -50,21 +96,20 @@ def spread_priors(
     -------
     list of DrivetrainParameters
         ``count`` drivetrains from a Latin hypercube seeded with :data:`DRAW_SEED`; their loss
-        torque and engine gain are the prior's.
+        torque and engine gain are the prior's. None when every half-width is 0.
 
     Raises
     ------
     ValueError
-        If ``spread`` is not in [0, 1) or ``count`` is negative.
+        If a half-width is out of range (:func:`half_widths`) or ``count`` is negative.
     """
-    if not 0.0 <= spread < 1.0:
-        raise ValueError(f"the spread must be in [0, 1), not {spread}")
+    widths = np.array(list(half_widths(spread).values()))
     if count < 0:
         raise ValueError(f"the number of vehicles must be >= 0, not {count}")
-    if count == 0 or spread == 0.0:
+    if count == 0 or not widths.any():
         return []
     unit = qmc.LatinHypercube(d=len(DRIVETRAIN), seed=DRAW_SEED).random(count)
-    factors = 1.0 - spread + 2.0 * spread * unit
+    factors = 1.0 - widths + 2.0 * widths * unit
     return [
         prior.replace(
             **{
