@@ -18,7 +18,7 @@ def add_vehicle_option(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="vehicle file (TOML): [engine] gives the crank-train data the model engine needs, "
         "[sensors] the speed sensor's arithmetic, [model] integration = \"euler\" (eq. 8's "
-        "discrete model) or \"verlet\" (a continuous plant) (default: the reference's and "
+        'discrete model) or "verlet" (a continuous plant) (default: the reference\'s and '
         "euler; see docs/model-assumptions.md)",
     )
 

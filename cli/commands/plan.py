@@ -153,7 +153,7 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
     """The parameters of --prior: a parameter TOML or an identification JSON."""
     if path is None:
         return reference_parameters()
-    if path.suffix.lower() != ".json":
+    if not _is_identification(path):
         return load_parameters(path)
     document = read_identification(path, "--prior")
     table = {name: document["parameters"].get(name) for name in NAMES}
@@ -162,6 +162,11 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
     if missing:
         raise ConfigError(f"--prior {path}: the identification has no {missing[0]!r}")
     return parse_parameters(table, str(path))
+
+
+def _is_identification(path: Path) -> bool:
+    """Whether --prior names an identification's JSON (else a parameter TOML)."""
+    return path.suffix.lower() == ".json"
 
 
 def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], list[float], float | None]:
@@ -177,7 +182,7 @@ def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], list[float], 
 def planned_spread(args: argparse.Namespace) -> float | str:
     """--spread as :func:`dtid.identification.planning.design.plan_test` takes it: a relative
     half-width or ``recorded``, with the defaults the option's help gives."""
-    guessed = args.prior is None or args.prior.suffix.lower() != ".json"
+    guessed = args.prior is None or not _is_identification(args.prior)
     value = args.spread
     if value is None:
         if guessed:

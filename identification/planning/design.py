@@ -623,9 +623,11 @@ def plan_test(
             amplitudes.append(extra)
     centre, notes = planning_prior(prior)
     info = measure_information(centre, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
-    if spread == RECORDED:
+    if isinstance(spread, str):
+        if spread != RECORDED:
+            raise ValueError(f"spread {spread!r}: give half-widths or {RECORDED!r}")
         spread = recorded_spread(info, recorded)
-    widths = half_widths(spread)  # type: ignore[arg-type]
+    widths = half_widths(spread)
     around = [
         measure_information(
             planning_prior(draw)[0], amplitudes, options=options, seeds=seeds, vehicle=vehicle

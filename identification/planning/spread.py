@@ -34,12 +34,11 @@ DRAW_SEED = 20261127
 DRIVETRAIN = tuple(name for name in NAMES if name not in ("T_loss", "K"))
 """The parameters drawn: inertias, stiffnesses, dampings, friction and free plays (the loss
 torque and the engine gain are the operating point's, measured on the vehicle)."""
-
-
 MAX_SPREAD = 0.9
 """Largest relative half-width a parameter is drawn within (it stays positive)."""
 RECORDED = "recorded"
-"""``spread`` that asks for each parameter's own: :data:`SIGMAS` times the relative precision
+"""``spread`` that asks for each parameter's own:
+:data:`~dtid.identification.planning.design.SIGMAS` times the relative precision
 the runs recorded so far reach (a follow-up test: the vehicles those runs cannot tell from the
 identified one), up to :data:`MAX_SPREAD`."""
 
