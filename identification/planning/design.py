@@ -351,9 +351,10 @@ class Recommendation:
     design
         The shortest design meeting every target, or the closest within the limits; None when
         the runs already recorded meet every target.
-    precision
+    per_vehicle
         Its predicted relative standard deviations (1 sigma), by :data:`PRECISION_NAMES`, with
-        the recorded runs.
+        the recorded runs: at the prior, then at each vehicle around it
+        (:attr:`PlanInformation.vehicles`).
     unmet
         The targets it does not reach (empty when it meets them all).
     excluded
@@ -362,18 +363,19 @@ class Recommendation:
         Designs evaluated.
     recorded
         The runs recorded before, counted in (a follow-up's; empty otherwise).
-    per_vehicle
-        The design's precision at the prior, then at each vehicle around it
-        (:attr:`PlanInformation.vehicles`); ``precision`` is their worst.
     """
 
     design: Design | None
-    precision: dict[str, float]
+    per_vehicle: tuple[dict[str, float], ...]
     unmet: tuple[Unmet, ...]
     excluded: dict[float, str]
     designs_tried: int
     recorded: tuple[Design, ...] = ()
-    per_vehicle: tuple[dict[str, float], ...] = ()
+
+    @property
+    def precision(self) -> dict[str, float]:
+        """Each parameter's worst predicted relative standard deviation over the vehicles."""
+        return {n: max(p[n] for p in self.per_vehicle) for n in PRECISION_NAMES}
 
 
 def recommend(
@@ -454,10 +456,11 @@ def recommend(
     recorded = tuple(recorded)
     before = [information(vehicle, recorded) for vehicle in vehicles]
     if recorded:
-        so_far = predict_worst(info, None, recorded)
-        if all(so_far[n] <= target for n, target in zip(names, needed, strict=True)):
-            per_vehicle = tuple(predict(vehicle, None, recorded) for vehicle in vehicles)
-            return Recommendation(None, so_far, (), excluded, 0, recorded, per_vehicle)
+        so_far = tuple(predict(vehicle, None, recorded) for vehicle in vehicles)
+        if all(
+            max(p[n] for p in so_far) <= target for n, target in zip(names, needed, strict=True)
+        ):
+            return Recommendation(None, so_far, (), excluded, 0, recorded)
     counts = np.array(list(itertools.product(range(1, MAX_REPEATS + 1), repeat=2)))
     best: tuple[tuple[float, float], Design] | None = None
     closest: tuple[float, Design] | None = None
@@ -495,13 +498,12 @@ def recommend(
         )
     design = best[1] if best is not None else closest[1]
     per_vehicle = tuple(predict(vehicle, design, recorded) for vehicle in vehicles)
-    precision = {n: max(p[n] for p in per_vehicle) for n in PRECISION_NAMES}
     unmet = tuple(
         _unmet(name, targets[name], per_vehicle, design, max_time_s, recorded, info.spread)
         for name in names
-        if SIGMAS * precision[name] * 100.0 > targets[name]
+        if SIGMAS * 100.0 * max(p[name] for p in per_vehicle) > targets[name]
     )
-    return Recommendation(design, precision, unmet, excluded, tried, recorded, per_vehicle)
+    return Recommendation(design, per_vehicle, unmet, excluded, tried, recorded)
 
 
 def _ratios(
@@ -756,9 +758,7 @@ def plan_document(
             "percent": round(100.0 * max(info.spread.values(), default=0.0), 3),
             "percent_by_parameter": {n: round(100.0 * w, 3) for n, w in info.spread.items()},
             "vehicles": len(info.around),
-            "predicted_precision_at_prior": (
-                _rounded(recommendation.per_vehicle[0]) if recommendation.per_vehicle else None
-            ),
+            "predicted_precision_at_prior": _rounded(recommendation.per_vehicle[0]),
             "vehicles_meeting": {
                 name: sum(SIGMAS * 100.0 * p[name] <= target for p in recommendation.per_vehicle)
                 for name, target in targets.items()
