@@ -42,6 +42,7 @@ from dtid.identification.planning.design import (
     shortest_test_s,
 )
 from dtid.identification.planning.information import RESOLUTION_HZ
+from dtid.identification.planning.spread import DEFAULT_VEHICLES, RECORDED
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import amplitude_levels
 from dtid.jsonfile import write_json
@@ -57,6 +58,13 @@ def main() -> None:
     parser.add_argument("--truth", type=int, default=2, help="random truth n (0: reference)")
     parser.add_argument("--max-time", type=float, default=1800.0, help="the budget, s")
     parser.add_argument("--max-rounds", type=int, default=6, help="rounds at most")
+    parser.add_argument(
+        "--plan-vehicles",
+        type=int,
+        default=DEFAULT_VEHICLES,
+        help="vehicles each round is planned for besides the identified one (dtid worker's "
+        "--plan-vehicles; 0: the identified parameters alone, as before 2026-11-27)",
+    )
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
 
@@ -97,6 +105,8 @@ def main() -> None:
             options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
             recorded=run_designs(fit.tests, fit.runs),
             held_out_nm=held_out,
+            spread=RECORDED,
+            vehicles=args.plan_vehicles,
         )
         errors = relative_errors(report.identification.theta, truth)
         design = recommendation.design

@@ -21,16 +21,24 @@ intervals are calibrated. Not a test: nothing is asserted.
     PYTHONPATH=. python benchmarks/information_bound.py --truth 1 --variation 0.03  # true 3 %
     PYTHONPATH=. python benchmarks/information_bound.py --truth 3 --recorded 0.03 0 0  # no noise
     PYTHONPATH=. python benchmarks/information_bound.py --truth 3 --plain  # independent draws
+    PYTHONPATH=. python benchmarks/information_bound.py \
+        --independent ../shared/independent/vehicle_1 --band 0.5 20  # its recordings' own test
+
+``--independent FOLDER`` takes the truth, engine and noise of a vehicle of
+../shared/independent (its idle loop is not disclosed: the product's stands in for it), so that
+the figures say what its recordings can pin at best.
 """
 
 from __future__ import annotations
 
 import argparse
 import itertools
+from pathlib import Path
 
 import numpy as np
 
 from benchmarks.identification_trial import draw_truth
+from benchmarks.plan_trial import independent_vehicle
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs
@@ -45,6 +53,7 @@ from dtid.identification.search.sensitivity import jacobian
 from dtid.identification.uncertainty.profile import correlation_length, local_variance
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.vehicle_data import load_vehicle_data
 
 RESOLUTION_HZ = 0.25
 
@@ -56,6 +65,12 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=12, help="noise seeds (recordings)")
     parser.add_argument("--identify", type=float, nargs="+", help="identifying amplitudes, N*m")
     parser.add_argument("--duration", type=float, default=60.0, help="chirp duration, s")
+    parser.add_argument(
+        "--band", type=float, nargs=2, default=[1.0, 15.0], metavar=("F1", "F2"), help="Hz"
+    )
+    parser.add_argument(
+        "--independent", type=Path, help="a vehicle folder of ../shared/independent (its truth)"
+    )
     parser.add_argument("--amplitudes", type=float, nargs="+", default=[2.0, 5.0, 10.0])
     parser.add_argument("--realizations", type=int, help="model realizations (default: 4)")
     parser.add_argument(
@@ -78,11 +93,17 @@ def main() -> None:
     )
     args = parser.parse_args()
 
-    truth = draw_truth(args.truth)
+    truth, options, vehicle = draw_truth(args.truth), SimulationOptions(), None
+    if args.independent:
+        truth, options = independent_vehicle(args.independent / "truth.toml")
+        vehicle = load_vehicle_data(args.independent / "truth.toml")
     plan = TestPlan(
-        amplitudes_nm=tuple(args.amplitudes), validation_nm=0.0, duration_s=args.duration
+        amplitudes_nm=tuple(args.amplitudes),
+        validation_nm=0.0,
+        duration_s=args.duration,
+        f1_hz=args.band[0],
+        f2_hz=args.band[1],
     )
-    options = SimulationOptions()
     if args.recorded:
         variation, speed_noise, torque_noise = args.recorded
         options = SimulationOptions(
@@ -95,12 +116,15 @@ def main() -> None:
             f"seed {s}",
             from_simulation(simulate(truth, plan, options, seed=100 + s)),
             RESOLUTION_HZ,
+            vehicle,
         )
         for s in range(args.seeds)
     ]
     selection = identification_runs(recordings, args.identify, RESOLUTION_HZ)
     true_theta = theta_from_parameters(truth)
-    par = Parameterization.around(reference_parameters(), truth.T_loss, truth.K)
+    # the box around the reference holds the random truths (+-40 %), not every independent one
+    centre = truth if args.independent else reference_parameters()
+    par = Parameterization.around(centre, truth.T_loss, truth.K)
     unit = par.unit(np.array([[true_theta[n] for n in THETA_NAMES]]))[0]
     span = par.upper - par.lower
 
@@ -152,7 +176,8 @@ def main() -> None:
     implied = np.mean(implied, axis=0)
 
     print(
-        f"truth {args.truth}, {args.seeds} seeds, chirps {args.duration:g} s, identifying "
+        f"truth {args.independent or args.truth}, {args.seeds} seeds, "
+        f"chirps {args.duration:g} s, identifying "
         f"{args.identify or 'the two largest'}; "
         f"NRMSE of the mean residual at the truth {[round(float(n), 4) for n in at_truth]}"
     )
@@ -165,6 +190,20 @@ def main() -> None:
             f"{100 * errors[:, k].std(ddof=1) / value:8.1f} {100 * sd_ls / value:8.1f} "
             f"{100 * implied[k] / value:12.1f} {sd_ls / implied[k]:6.2f}"
         )
+    # the inertias J1-J3 from J_sum, x1 and x12, per seed
+    k = {name: THETA_NAMES.index(name) for name in ("J_sum", "x1", "x12")}
+    true_j = _inertias(*(true_theta[n] for n in k))
+    estimated = errors[:, list(k.values())] + [true_theta[n] for n in k]
+    inertias = np.array([_inertias(*row) for row in estimated])
+    for i, name in enumerate(("J1", "J2", "J3")):
+        relative = inertias[:, i] / true_j[i] - 1.0
+        print(f"{name:>6} {100 * relative.mean():+8.1f} {100 * relative.std(ddof=1):8.1f}")
+
+
+def _inertias(j_sum: float, x1: float, x12: float) -> tuple[float, float, float]:
+    """J1, J2, J3 from the total inertia and the mass ratios x1 = J1 / (J1 + J2) and
+    x12 = (J1 + J2) / J_sum, kg*m^2."""
+    return x1 * x12 * j_sum, (1.0 - x1) * x12 * j_sum, (1.0 - x12) * j_sum
 
 
 if __name__ == "__main__":

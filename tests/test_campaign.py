@@ -252,6 +252,7 @@ def test_campaign_adds_rounds_until_the_budget_is_spent(tmp_path: Path, ipc_dir:
         settings=SearchSettings(popsize=2, generations=2, polish_evaluations=20, seed=3),
         profile_points=0,
         plot=False,
+        plan_vehicles=0,  # the plan for vehicles around: test_worker.py
     )
     worker = multiprocessing.get_context("spawn").Process(
         target=_serve_worker, args=(pipeline, options)

@@ -516,10 +516,10 @@ def test_replay_alone_gives_the_live_result(
     daemon.go.set()
     assert daemon.done.wait(10)
     options = WorkerOptions(
-        settings=BUDGET, profile_points=0, diagnose=True, plan_follow_up=True
+        settings=BUDGET, profile_points=0, diagnose=True, plan_follow_up=True, plan_vehicles=1
     )  # beside the log
     try:
-        status, messages, _ = _serve(pipeline, options)
+        status, messages, _ = _serve(pipeline, options, timeout_s=600.0)
     finally:
         daemon.close()
     assert status == 0 and daemon.requests[0] == 0
@@ -553,8 +553,25 @@ def test_replay_alone_gives_the_live_result(
     assert plan["prior"]["c12"] == pytest.approx(result["parameters"]["c12"])
     assert "validation amplitude" in plan["information"]["excluded"]["2"]
     if plan["plan"] is not None:  # the follow-up adds to what the session reached
-        for name, value in plan["predicted_precision"].items():
+        for name, value in plan["spread"]["predicted_precision_at_prior"].items():
             assert value < plan["recorded"]["predicted_precision"][name], name
+    # ... and is dtid plan --after's, planned for a vehicle around the identified one too, each
+    # parameter within twice the precision reached (the prior there is identification.json's,
+    # rounded, and the friction's information moves with the last digits: close, not equal)
+    out = folder / "offline-plan.json"
+    command = ["plan", "--prior", str(identification), "--after", str(session.log_path)]
+    assert main([*command, "--spread-vehicles", "1", "--json", str(out)]) == 0
+    offline = json.loads(out.read_text())
+    assert plan["spread"]["vehicles"] == offline["spread"]["vehicles"] == 1
+    widths = plan["spread"]["percent_by_parameter"]
+    for name, reached in plan["recorded"]["predicted_precision"].items():
+        if name in widths:  # reached: the worst of the identified and the drawn vehicle
+            assert widths[name] <= min(200 * reached, 90.0) + 0.01, name
+            assert widths[name] == pytest.approx(
+                offline["spread"]["percent_by_parameter"][name], rel=0.15
+            )
+    assert [u["name"] for u in plan["unmet"]] == [u["name"] for u in offline["unmet"]]
+    assert plan["test_time_s"] == pytest.approx(offline["test_time_s"], rel=0.1)
 
 
 def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_budget(
@@ -589,7 +606,9 @@ def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_
     pipeline = _pipeline(ipc_dir)
     daemon = FakeDaemon(pipeline, events)
     daemon.go.set()
-    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json")
+    options = WorkerOptions(
+        settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json", plan_vehicles=0
+    )
     try:
         status, messages, _ = _serve(pipeline, options, timeout_s=120.0)
     finally:
@@ -724,6 +743,8 @@ def test_worker_exits_cleanly_on_sigterm(ipc_dir: Path) -> None:
 def test_worker_command_rejects_a_bad_budget(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["worker", "--once", "--generations", "0"]) == 2
     assert "--generations must be at least 1" in capsys.readouterr().err
+    assert main(["worker", "--once", "--plan-vehicles", "-1"]) == 2
+    assert "--plan-vehicles must be 0 or more" in capsys.readouterr().err
 
 
 def test_config_default_endpoints_are_ipc() -> None:

@@ -19,6 +19,8 @@ from typing import Any
 from dtid.acquisition.config import load_config
 from dtid.cli.commands.common import add_vehicle_option, vehicle_data
 from dtid.cli.commands.identify import add_search_options, print_report, search_settings
+from dtid.errors import ConfigError
+from dtid.identification.planning.spread import DEFAULT_VEHICLES
 from dtid.identification.service.worker import Worker, WorkerOptions, leave_a_core_to_the_bus
 from dtid.simulator.parameters import load_parameters
 
@@ -46,6 +48,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "--plot", type=Path, help="Fig. 6 plot (default: identification.png beside the log)"
     )
     parser.add_argument("--no-plot", action="store_true", help="do not plot")
+    parser.add_argument(
+        "--plan-vehicles",
+        type=int,
+        default=DEFAULT_VEHICLES,
+        metavar="N",
+        help="vehicles the follow-up and a campaign's next round are planned for besides the "
+        "identified one, each parameter within twice the precision reached (dtid plan --after "
+        f"--spread recorded; default: {DEFAULT_VEHICLES}; 0: the identified parameters alone)",
+    )
     parser.set_defaults(run=run)
 
 
@@ -78,6 +89,8 @@ def run(args: argparse.Namespace) -> int:
     """Serve sessions until SIGINT/SIGTERM (or one session with --once)."""
     settings = search_settings(args)
     config = load_config(args.config)
+    if args.plan_vehicles < 0:
+        raise ConfigError("--plan-vehicles must be 0 or more")
     options = WorkerOptions(
         settings=settings,
         profile_points=args.profile_points,
@@ -88,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         plot=not args.no_plot,
         diagnose=config.worker.diagnose,
         plan_follow_up=config.worker.plan_follow_up,
+        plan_vehicles=args.plan_vehicles,
         safety=config.safety,
     )
     leave_a_core_to_the_bus()

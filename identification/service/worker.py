@@ -66,6 +66,7 @@ from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
 from dtid.identification.planning.agreement import agreement, plan_scatter
+from dtid.identification.planning.spread import DEFAULT_VEHICLES, RECORDED
 from dtid.identification.samples.recording import load_recording
 from dtid.identification.search.identify import SearchSettings, amplitude_levels
 from dtid.identification.service.live import EventLog, LiveSession
@@ -140,6 +141,11 @@ class WorkerOptions:
         After the validation, diagnose the identified model (``[worker] diagnose``).
     plan_follow_up
         After the result, plan the follow-up test (``[worker] plan_follow_up``).
+    plan_vehicles
+        Vehicles the follow-up (and a campaign's next round) is planned for besides the
+        identified one, each drivetrain parameter within twice the precision the recorded runs
+        reach, as ``dtid plan --after`` plans (``--spread recorded``); 0 plans at the identified
+        parameters alone.
     safety
         The daemon's safety envelope, which caps the follow-up's amplitude and speed excursion.
     """
@@ -154,6 +160,7 @@ class WorkerOptions:
     resolution_hz: float = DEFAULT_RESOLUTION_HZ
     diagnose: bool = False
     plan_follow_up: bool = False
+    plan_vehicles: int = DEFAULT_VEHICLES
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
 
@@ -779,6 +786,8 @@ class Worker:
                 recorded=run_designs(fit.tests, fit.runs),
                 held_out_nm=held_out,
                 vehicle=self.options.vehicle if self.options.vehicle.given else None,
+                spread=RECORDED,
+                vehicles=self.options.plan_vehicles,
             )
         except (DtidError, KeyError, TypeError, ValueError) as error:
             message = f"the follow-up plan: {error}"
