@@ -148,8 +148,15 @@ def parse_parameters(table: dict[str, object], source: str) -> DrivetrainParamet
     return DrivetrainParameters(**{name: float(table[name]) for name in NAMES})  # type: ignore[arg-type]
 
 
+VEHICLE_TABLES = ("engine", "sensors", "model")
+"""Tables of a vehicle file besides ``[drivetrain]`` (:mod:`dtid.simulator.vehicle_data`)."""
+
+
 def load_parameters(path: str | Path) -> DrivetrainParameters:
-    """Load a parameter set from a TOML file with the keys of :data:`NAMES` (SI units).
+    """Load a parameter set from a TOML file with the keys of :data:`NAMES` (SI units): at its
+    top level, or in the ``[drivetrain]`` table of a vehicle file (whose
+    :data:`VEHICLE_TABLES` are then left to :func:`dtid.simulator.vehicle_data.load_vehicle_data`),
+    so that one file can be both ``--prior`` and ``--vehicle``.
 
     Raises
     ------
@@ -157,7 +164,18 @@ def load_parameters(path: str | Path) -> DrivetrainParameters:
         If the file is missing, is not TOML, or has an unknown, missing or non-physical key.
     """
     path = Path(path)
-    return parse_parameters(read_toml(path, "parameter file"), source=str(path))
+    document = read_toml(path, "parameter file")
+    drivetrain = document.get("drivetrain")
+    if not isinstance(drivetrain, dict):
+        return parse_parameters(document, source=str(path))
+    beside = [key for key in document if key not in ("drivetrain", *VEHICLE_TABLES)]
+    if beside:
+        raise ConfigError(
+            f"{path}: {beside[0]!r} beside [drivetrain]; a vehicle file gives the drivetrain "
+            f"parameters in [drivetrain] and its vehicle data in "
+            f"{', '.join(f'[{name}]' for name in VEHICLE_TABLES)} only"
+        )
+    return parse_parameters(drivetrain, source=f"{path} [drivetrain]")
 
 
 def read_toml(path: Path, kind: str) -> dict[str, object]:

@@ -25,7 +25,8 @@ paper's model (as ``../shared/independent`` evidently are) from a discrete one
 A vehicle file is TOML. Its ``[engine]`` table holds any of the keys below, named as in the
 paper (eqs. 4-5); a key not given keeps the reference engine's value; its ``[sensors]`` table
 may give ``speed_average``, its ``[model]`` table ``integration``. Other tables (a
-``[drivetrain]`` prior, the truths of a simulated vehicle) are not read here::
+``[drivetrain]`` table, which ``--prior`` reads (:func:`dtid.simulator.parameters.load_parameters`),
+the truths of a simulated vehicle) are not read here::
 
     [engine]
     N_cyl = 4            # -: cylinders (the model is a four-cylinder four-stroke engine)
@@ -56,7 +57,7 @@ from dtid.errors import ConfigError
 from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.engine import EngineGeometry
 from dtid.simulator.kernel import INTEGRATION
-from dtid.simulator.parameters import read_toml
+from dtid.simulator.parameters import VEHICLE_TABLES, read_toml
 
 ENGINE_KEYS: dict[str, tuple[str, str]] = {
     "bore": ("bore_m", "m"),
@@ -122,7 +123,7 @@ def load_vehicle_data(path: str | Path) -> VehicleData:
     """
     path = Path(path)
     document = read_toml(path, "vehicle file")
-    tables = [document.get(name, {}) for name in ("engine", "sensors", "model")]
+    tables = [document.get(name, {}) for name in VEHICLE_TABLES]
     if not all(isinstance(t, dict) for t in tables) or not any(tables):
         raise ConfigError(
             f"vehicle file {path} has no [engine] table; give the crank-train data there "

@@ -71,3 +71,17 @@ def test_missing_file_and_bad_toml(tmp_path: Path) -> None:
         load_parameters(tmp_path / "nope.toml")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_parameters(_write(tmp_path, "J1 = = 3\n"))
+
+
+def test_a_vehicle_file_gives_its_drivetrain_in_a_table(tmp_path: Path) -> None:
+    """One vehicle file for --prior and --vehicle: [drivetrain] beside [engine], [sensors] and
+    [model]; anything else beside it, or a bad key inside it, is named with the table."""
+    engine = '[engine]\nbore = 0.08\n[sensors]\nspeed_average = "times"\n'
+    path = _write(tmp_path, engine + "[drivetrain]\n" + _reference_body(c12="300.0"))
+    loaded = load_parameters(path)
+    assert loaded.c12 == 300.0
+    assert loaded.J1 == reference_parameters().J1
+    with pytest.raises(ConfigError, match=r"\[drivetrain\]: unknown parameter 'n_set'"):
+        load_parameters(_write(tmp_path, "[drivetrain]\n" + _reference_body(n_set="850.0")))
+    with pytest.raises(ConfigError, match="'noise' beside \\[drivetrain\\]"):
+        load_parameters(_write(tmp_path, "[noise]\ncv = 0.02\n[drivetrain]\n" + _reference_body()))

@@ -71,7 +71,8 @@ def add_bounds_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--prior",
         type=Path,
-        help="parameter set (TOML) the bounds centre on (default: the reference vehicle)",
+        help="parameter set (TOML: the keys at its top level or in a vehicle file's [drivetrain]) "
+        "the bounds centre on (default: the reference vehicle)",
     )
     parser.add_argument(
         "--span",

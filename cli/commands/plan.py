@@ -65,8 +65,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--prior",
         type=Path,
-        help="parameters to plan for: a parameter set (TOML) or a dtid identify JSON (its "
-        "parameters; default: the reference vehicle)",
+        help="parameters to plan for: a parameter set (TOML: the keys at its top level or in a "
+        "vehicle file's [drivetrain]) or a dtid identify JSON (its parameters; default: the "
+        "reference vehicle)",
     )
     parser.add_argument(
         "--after",

@@ -37,7 +37,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--prior",
         type=Path,
-        help="parameter set (TOML) the default +-100 %% bounds centre on (default: reference)",
+        help="parameter set (TOML, as dtid identify --prior) the default +-100 %% bounds centre "
+        "on (default: reference)",
     )
     add_vehicle_option(parser)
     add_search_options(parser)
