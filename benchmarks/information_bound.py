@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.identification_trial import draw_truth
-from benchmarks.plan_trial import independent_vehicle
+from benchmarks.plan_trial import independent_vehicle, relative_errors
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs
@@ -191,19 +191,11 @@ def main() -> None:
             f"{100 * implied[k] / value:12.1f} {sd_ls / implied[k]:6.2f}"
         )
     # the inertias J1-J3 from J_sum, x1 and x12, per seed
-    k = {name: THETA_NAMES.index(name) for name in ("J_sum", "x1", "x12")}
-    true_j = _inertias(*(true_theta[n] for n in k))
-    estimated = errors[:, list(k.values())] + [true_theta[n] for n in k]
-    inertias = np.array([_inertias(*row) for row in estimated])
-    for i, name in enumerate(("J1", "J2", "J3")):
-        relative = inertias[:, i] / true_j[i] - 1.0
+    estimates = errors + [true_theta[n] for n in THETA_NAMES]
+    seeds = [relative_errors(dict(zip(THETA_NAMES, row, strict=True)), truth) for row in estimates]
+    for name in ("J1", "J2", "J3"):
+        relative = np.array([e[name] for e in seeds])
         print(f"{name:>6} {100 * relative.mean():+8.1f} {100 * relative.std(ddof=1):8.1f}")
-
-
-def _inertias(j_sum: float, x1: float, x12: float) -> tuple[float, float, float]:
-    """J1, J2, J3 from the total inertia and the mass ratios x1 = J1 / (J1 + J2) and
-    x12 = (J1 + J2) / J_sum, kg*m^2."""
-    return x1 * x12 * j_sum, (1.0 - x1) * x12 * j_sum, (1.0 - x12) * j_sum
 
 
 if __name__ == "__main__":

@@ -553,11 +553,11 @@ def test_replay_alone_gives_the_live_result(
     assert plan["prior"]["c12"] == pytest.approx(result["parameters"]["c12"])
     assert "validation amplitude" in plan["information"]["excluded"]["2"]
     if plan["plan"] is not None:  # the follow-up adds to what the session reached
-        for name, value in plan["spread"]["predicted_precision_at_prior"].items():
+        for name, value in plan["predicted_precision"].items():
             assert value < plan["recorded"]["predicted_precision"][name], name
     # ... and is dtid plan --after's, planned for a vehicle around the identified one too, each
-    # parameter within twice the precision reached (the prior there is identification.json's,
-    # rounded, and the friction's information moves with the last digits: close, not equal)
+    # parameter within twice the precision reached (close, not equal: the log's set-point differs
+    # from the stream's in the last digits, and the friction's information moves with them)
     out = folder / "offline-plan.json"
     command = ["plan", "--prior", str(identification), "--after", str(session.log_path)]
     assert main([*command, "--spread-vehicles", "1", "--json", str(out)]) == 0
