@@ -213,8 +213,11 @@ def test_a_signal_while_waiting_for_the_plan_stops_without_a_traceback(tmp_path:
 
 # --- rounds on a virtual bus --------------------------------------------------------------------
 
-SPEEDUP = 4.0
-"""Bus seconds per wall second of the virtual vehicle."""
+SPEEDUP = 2.0
+"""Bus seconds per wall second of the virtual vehicle. The vehicle and the daemon share this
+process while the worker measures the planning information beside them: at 4x one CI run on a
+busy host starved the daemon's sender (pauses up to 0.58 s of bus time) and round 1 could not be
+identified, so the campaign stopped after it (correctly, saying why)."""
 
 
 def _serve_worker(pipeline: PipelineConfig, options: WorkerOptions) -> None:
@@ -232,7 +235,9 @@ def ipc_dir() -> Iterator[Path]:
 
 
 @pytest.mark.slow
-def test_campaign_adds_rounds_until_the_budget_is_spent(tmp_path: Path, ipc_dir: Path) -> None:
+def test_campaign_adds_rounds_until_the_budget_is_spent(
+    tmp_path: Path, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Round 1 (72 s) leaves 168 s of a 240 s budget; the worker identifies it, plans a second
     round within what is left, the daemon runs it; the worker identifies both rounds together
     and the campaign stops when the next round no longer fits (or the targets are met), saying
@@ -254,6 +259,7 @@ def test_campaign_adds_rounds_until_the_budget_is_spent(tmp_path: Path, ipc_dir:
         plot=False,
         plan_vehicles=0,  # the plan for vehicles around: test_worker.py
     )
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "1")  # the worker leaves a core to the vehicle
     worker = multiprocessing.get_context("spawn").Process(
         target=_serve_worker, args=(pipeline, options)
     )
@@ -280,7 +286,7 @@ def test_campaign_adds_rounds_until_the_budget_is_spent(tmp_path: Path, ipc_dir:
     validate(record, "campaign")
     rounds = record["rounds"]
     assert [r["status"] for r in rounds] == ["completed"] * len(rounds), lines
-    assert len(rounds) >= 2, record
+    assert len(rounds) >= 2, (record["stopped"], record.get("message"), lines)
     assert record["stopped"] in ("time_budget", "targets_met"), record
     assert record["spent_s"] == sum(r["test_time_s"] for r in rounds) <= 240.0
     assert lines[-1].startswith(f"campaign stopped: {record['stopped']}")
