@@ -39,12 +39,14 @@ from dtid.identification.search.identify import (
     amplitude_levels,
     engine_gain,
     identify,
+    identify_from,
     runs_at,
     split_runs,
 )
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import (
     PRIOR_SPAN,
+    THETA_NAMES,
     THETA_UNITS,
     Parameterization,
     passenger_car_bounds,
@@ -176,6 +178,55 @@ def validation_runs(
 
 
 @dataclass(frozen=True)
+class SearchRestart:
+    """The search restarted where a profile had found a better fit than its optimum
+    (:attr:`dtid.identification.uncertainty.profile.Profile.beats_estimate`).
+
+    Attributes
+    ----------
+    parameter
+        The profile that found it (the one whose minimum fitted best).
+    statistic
+        The search's optimum's likelihood-ratio statistic against that profile's minimum (above
+        the 95 % threshold, 3.84, and its margin).
+    objective_search, objective_restart
+        Eq. (17) at the search's optimum and where the restart ended (the report's estimate is
+        the lower).
+    search_theta
+        The search's optimum, setup-4 values by name, SI units.
+    """
+
+    parameter: str
+    statistic: float
+    objective_search: float
+    objective_restart: float
+    search_theta: Mapping[str, float]
+
+    def message(self, adopted: bool) -> str:
+        """What happened, for the log."""
+        head = (
+            f"the profile of {self.parameter} found a better fit than the search (the search's "
+            f"optimum {self.statistic:.1f} above the profile's minimum on the 95 % scale, "
+            "threshold 3.84): the search had ended at another optimum; restarted from there, "
+            f"eq. (17) {self.objective_search:.4f} -> {self.objective_restart:.4f}"
+        )
+        if adopted:
+            return head + "; the estimate is the restart's (the intervals are the profiles')"
+        return head + "; the restart did not improve on the search, whose estimate is kept"
+
+    def as_dict(self) -> dict[str, object]:
+        """JSON-ready (``search_restart`` of the identification JSON)."""
+        return {
+            "parameter": self.parameter,
+            "statistic": self.statistic,
+            "objective_search": self.objective_search,
+            "objective_restart": self.objective_restart,
+            "adopted": self.objective_restart < self.objective_search,
+            "search_theta": dict(self.search_theta),
+        }
+
+
+@dataclass(frozen=True)
 class IdentificationReport:
     """An identification with its profiles.
 
@@ -199,6 +250,9 @@ class IdentificationReport:
         without profiles.
     parameterization
         The search box and the values held (to score or refine other sets in it).
+    restart
+        Where the search was restarted from a profile that fitted better, None when no profile
+        beat it.
     """
 
     identification: Identification
@@ -210,6 +264,7 @@ class IdentificationReport:
     validation: RunSelection | None = None
     inseparable: Mapping[str, str] = dataclasses.field(default_factory=dict)
     parameterization: Parameterization | None = None
+    restart: SearchRestart | None = None
 
     def validated(self, selection: RunSelection) -> IdentificationReport:
         """The report with the validation NRMSE of the identified parameters on these runs, the
@@ -351,6 +406,7 @@ class IdentificationReport:
             "idle_loop": {t.name: t.loop.as_dict() for t in self.fit.tests} if self.fit else {},
             "vehicle_data": self.fit.tests[0].vehicle.as_dict() if self.fit else {},
             "objective": result.objective,
+            "search_restart": self.restart.as_dict() if self.restart else None,
             "parameter_sets": result.parameter_sets,
             "seconds": result.seconds,
             "profiles": {
@@ -557,6 +613,21 @@ def identify_runs(
                 profiles[name] = one(name)
         else:
             profiles = dict(zip(par.free, profile_map(one, list(par.free)), strict=True))
+    restart = None
+    beaten = [p for p in profiles.values() if p.beats_estimate and p.minimum_unit is not None]
+    if beaten:  # a profile found a better fit than the search: go on from there
+        lowest = min(beaten, key=lambda p: float(np.min(p.objective)))
+        assert lowest.minimum_unit is not None
+        start = dict(
+            zip(THETA_NAMES, map(float, par.theta(lowest.minimum_unit[None])[0]), strict=True)
+        )
+        moved = identify_from(tests, par, ident, [[] for _ in tests], start, settings, progress)
+        restart = SearchRestart(
+            lowest.name, lowest.estimate_statistic, result.objective, moved.objective, result.theta
+        )
+        logger.warning("%s", restart.message(moved.objective < result.objective))
+        if moved.objective < result.objective:
+            result = moved
     return IdentificationReport(
         result,
         with_structure(profiles, reasons),
@@ -566,4 +637,5 @@ def identify_runs(
         fit=selection,
         inseparable=reasons,
         parameterization=par,
+        restart=restart,
     )

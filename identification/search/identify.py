@@ -385,6 +385,81 @@ def identify(
         candidates = np.array([member for member, _ in polished])
         best = candidates[int(np.argmin(objective(candidates)))]  # ranked on all realizations
         stages["polish"].count(objective)
+    return _last_stages(
+        tests,
+        parameterization,
+        identify_runs,
+        validate_runs,
+        settings,
+        progress,
+        objective,
+        stages,
+        best,
+        began,
+    )
+
+
+def identify_from(
+    tests: Sequence[MeasuredTest],
+    parameterization: Parameterization,
+    identify_runs: Sequence[Sequence[int]],
+    validate_runs: Sequence[Sequence[int]],
+    start: Mapping[str, float],
+    settings: SearchSettings | None = None,
+    progress: Progress | None = None,
+) -> Identification:
+    """:func:`identify` from a given point: the search's last stages (the final Nelder-Mead
+    polish and the Levenberg-Marquardt steps, as :func:`refine`) without the global search. For
+    where a profile found a better fit than the search
+    (:attr:`dtid.identification.uncertainty.profile.Profile.beats_estimate`).
+
+    Parameters
+    ----------
+    tests, parameterization, identify_runs, validate_runs, settings, progress
+        As :func:`identify`.
+    start
+        Setup-4 values to start from (clipped into the box).
+    """
+    settings = settings or SearchSettings()
+    began = time.perf_counter()
+    used = [(t, runs) for t, runs in zip(tests, identify_runs, strict=True) if runs]
+    coordinates = parameterization.modal_coordinates()
+    objective = Objective(
+        coordinates,
+        [t.model_test(runs) for t, runs in used],
+        [[t.estimates[i].drv_db for i in runs] for t, runs in used],
+    )
+    best = _unit_start(coordinates, start)
+    return _last_stages(
+        tests,
+        parameterization,
+        identify_runs,
+        validate_runs,
+        settings,
+        progress,
+        objective,
+        {},
+        best,
+        began,
+    )
+
+
+def _last_stages(
+    tests: Sequence[MeasuredTest],
+    parameterization: Parameterization,
+    identify_runs: Sequence[Sequence[int]],
+    validate_runs: Sequence[Sequence[int]],
+    settings: SearchSettings,
+    progress: Progress | None,
+    objective: Objective,
+    stages: dict[str, Objective],
+    best: np.ndarray,
+    began: float,
+) -> Identification:
+    """Stages 3 (final polish) and 4 (Levenberg-Marquardt) from ``best`` (the search's
+    coordinates), and the identification they end at."""
+    coordinates = objective.parameterization
+    if len(best):
         stages["final"], stages["newton"] = objective.replacing(), objective.replacing()
         best, value = _polish(
             stages["final"],
@@ -413,7 +488,11 @@ def identify(
         stages={name: (stage.parameter_sets, stage.seconds) for name, stage in stages.items()},
         combustion_variation={
             t.name: model.combustion_variation
-            for (t, _), model in zip(used, objective.tests, strict=True)
+            for t, model in zip(
+                (t for t, runs in zip(tests, identify_runs, strict=True) if runs),
+                objective.tests,
+                strict=True,
+            )
         },
     )
 

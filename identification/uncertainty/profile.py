@@ -159,6 +159,11 @@ class Profile:
     on_grid
         Which of ``values`` are points of the evenly spaced grid (the others locate the
         interval's ends or are the optimum); None: all.
+    estimate_statistic, estimate_margin
+        The statistic of the search's optimum against the profile's minimum, and its margin
+        (as ``statistic`` and ``margin``): about 0 when the search found the minimum.
+    minimum_unit
+        The normalised free values at the profile's minimum (every free parameter).
     """
 
     name: str
@@ -170,6 +175,16 @@ class Profile:
     verdict: str
     note: str = ""
     on_grid: np.ndarray | None = field(default=None, repr=False)
+    estimate_statistic: float = 0.0
+    estimate_margin: float = 0.0
+    minimum_unit: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def beats_estimate(self) -> bool:
+        """Whether the profile found a fit significantly better than the search's optimum: the
+        optimum lies outside the profile's own 95 % region (its statistic above the threshold
+        and margin), so the search had ended at another optimum."""
+        return self.estimate_statistic > THRESHOLD + self.estimate_margin
 
     @property
     def rise(self) -> tuple[float, float]:
@@ -530,6 +545,7 @@ def profile(
     best_u = float(optimum_unit[k])
     value, ssr, curves = _evaluate(objective, measured_db, optimum_unit[None])
     evaluated = {best_u: (value, curves, replicated(optimum_unit, ssr))}
+    estimate = evaluated[best_u]  # the search's optimum (smoothing may replace its point)
     solutions = {best_u: optimum_unit[others]}
 
     def evaluate(u: float) -> None:
@@ -555,12 +571,16 @@ def profile(
 
     def stat_and_margin(u: float) -> tuple[float, float]:
         """Lambda at u and what its threshold is raised by (the module notes)."""
+        return stat_of(evaluated[u])
+
+    def stat_of(entry: tuple[float, list[np.ndarray], np.ndarray]) -> tuple[float, float]:
+        """Lambda of an evaluated point (objective, curves, replicated SSRs) and its margin."""
         best = minimum()
-        scale = noise_scale(measured_db, evaluated[best][1], evaluated[u][1])
+        scale = noise_scale(measured_db, evaluated[best][1], entry[1])
         if np.isnan(scale):
             return float("inf"), 0.0  # the model could not idle
         scale *= small_sample_factor(independent_bins(measured_db, evaluated[best][1]), len(free))
-        differences = evaluated[u][2] - evaluated[best][2]  # paired: draw by draw
+        differences = entry[2] - evaluated[best][2]  # paired: draw by draw
         error = float(np.std(differences, ddof=1) / np.sqrt(len(differences))) if replicas else 0.0
         return _ratio(float(differences.mean()), scale), _ratio(NOISE_QUANTILE * error, scale)
 
@@ -618,7 +638,20 @@ def profile(
         values, stat - margin, lowest + minimum() * (highest - lowest)
     )
     on_grid = np.isin(grid_unit, grid)
-    result = Profile(name, values, best_objective, stat, margin, interval, verdict, "", on_grid)
+    lowest_u = minimum()
+    result = Profile(
+        name,
+        values,
+        best_objective,
+        stat,
+        margin,
+        interval,
+        verdict,
+        "",
+        on_grid,
+        *stat_of(estimate),
+        np.insert(solutions[lowest_u], k, lowest_u),
+    )
     climbs = max((rise for rise in result.rise if np.isfinite(rise)), default=0.0)
     if result.flat or (stochastic and climbs < NOISY_FLAT_RISE):
         return dataclasses.replace(result, interval=(None, None), verdict="no")
