@@ -209,6 +209,8 @@ def main() -> None:
         f"{vehicle.torque_noise_nm:.3f} N*m true, {measured.loop.torque_noise_nm:.3f} estimated"
     )
     print(f"fit NRMSE {result.fit_nrmse}, validation NRMSE {result.validation_nrmse}")
+    if report.restart is not None:
+        print(report.restart.message(report.restart.as_dict()["adopted"] is True))
     nearest, nearest_value = nearest_optimum(truth, report, settings)
     print(
         f"eq. (17): {result.objective:.4f} at the optimum found, "
@@ -248,6 +250,7 @@ def main() -> None:
                 n: 100 * (nearest[n] / true_theta[n] - 1) for n in THETA_NAMES
             },
             "validation_nrmse": list(result.validation_nrmse.values()),
+            "search_restart": report.restart.as_dict() if report.restart else None,
             "profiles": {name: prof.as_dict() for name, prof in report.profiles.items()},
         }
         with open(args.json, "w", encoding="utf-8") as out:
