@@ -370,7 +370,7 @@ def test_nested_p_value_is_exact_for_a_linear_fit() -> None:
 
 
 def test_a_profile_that_beats_the_search_restarts_it_there(
-    decoupled: tuple, monkeypatch: pytest.MonkeyPatch
+    decoupled: tuple, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A search that ended off the optimum (held here at c12 +40 %, clean data) is caught by a
     profile whose minimum fits significantly better: the search's last stages restart there,
@@ -402,3 +402,7 @@ def test_a_profile_that_beats_the_search_restarts_it_there(
     assert report.parameters["c12"] == pytest.approx(truth.c12, rel=0.02)
     assert report.identification.objective == pytest.approx(restart.objective_restart)
     assert report.as_dict()["search_restart"]["adopted"] is True
+    from dtid.cli.commands.identify import print_report
+
+    print_report(report.as_dict(), fixed)
+    assert f"search restarted where the profile of {restart.parameter}" in capsys.readouterr().out

@@ -190,6 +190,14 @@ def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> Non
         print(
             f"idle loop of {name}: model driven by the {loop['mode'].replace('_', ' ')} ({detail})"
         )
+    restart = document.get("search_restart")
+    if restart:
+        outcome = "the estimate is the restart's" if restart["adopted"] else "no better; kept"
+        print(
+            f"search restarted where the profile of {restart['parameter']} fitted better: eq. "
+            f"(17) {restart['objective_search']:.4f} -> {restart['objective_restart']:.4f} "
+            f"({outcome})"
+        )
     print(f"{document['parameter_sets']} parameter sets simulated in {document['seconds']:.0f} s")
 
 
