@@ -626,8 +626,14 @@ def identify_runs(
             lowest.name, lowest.estimate_statistic, result.objective, moved.objective, result.theta
         )
         logger.warning("%s", restart.message(moved.objective < result.objective))
-        if moved.objective < result.objective:
-            result = moved
+        kept = moved if moved.objective < result.objective else result
+        result = dataclasses.replace(  # the restart's cost counts with the search's
+            kept,
+            parameter_sets=result.parameter_sets + moved.parameter_sets,
+            seconds=result.seconds + moved.seconds,
+            objective_seconds=result.objective_seconds + moved.objective_seconds,
+            stages={**result.stages, **{f"restart_{k}": v for k, v in moved.stages.items()}},
+        )
     return IdentificationReport(
         result,
         with_structure(profiles, reasons),

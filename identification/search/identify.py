@@ -205,8 +205,9 @@ class Identification:
     seconds
         Wall time of the search, s, and the share spent in the objective.
     stages
-        Per search stage (``global``, ``polish``, ``final``, ``newton``): parameter sets
-        simulated and seconds spent in the objective.
+        Per search stage (``global``, ``polish``, ``final``, ``newton``; ``restart_final`` and
+        ``restart_newton`` when a profile restarted the search): parameter sets simulated and
+        seconds spent in the objective.
     combustion_variation
         The combustion variation the model engine repeated, per recording name.
     """
