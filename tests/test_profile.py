@@ -406,3 +406,29 @@ def test_a_profile_that_beats_the_search_restarts_it_there(
 
     print_report(report.as_dict(), fixed)
     assert f"search restarted where the profile of {restart.parameter}" in capsys.readouterr().out
+
+
+def test_an_interval_that_excludes_the_estimate_beats_it() -> None:
+    """Truth 14 of the calibration trial: d23's interval 0.3721-0.4261 excluded the search's
+    0.3621 while the optimum's own statistic stayed within its Monte Carlo margin; either sign
+    says the search ended at another optimum, neither says nothing."""
+    values = np.array([0.30, 0.3621, 0.40, 0.45])
+
+    def with_estimate(value: float, statistic: float, margin: float) -> Profile:
+        return Profile(
+            "d23",
+            values,
+            np.array([0.12, 0.104, 0.100, 0.11]),
+            np.array([20.0, 6.0, 0.0, 8.0]),
+            np.array([1.0, 1.0, 0.0, 1.0]),
+            (0.3721, 0.4261),
+            "practical",
+            estimate_statistic=statistic,
+            estimate_margin=margin,
+            estimate_value=value,
+        )
+
+    assert with_estimate(0.3621, 6.0, 4.0).beats_estimate  # outside, within its margin
+    assert with_estimate(0.40, 9.0, 1.0).beats_estimate  # inside, its own statistic too large
+    assert not with_estimate(0.40, 6.0, 4.0).beats_estimate
+    assert not with_estimate(0.40, 0.0, 0.0).as_dict()["estimate"]["beaten"]
