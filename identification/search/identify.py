@@ -355,13 +355,8 @@ def identify(
     """
     settings = settings or SearchSettings()
     began = time.perf_counter()
-    used = [(t, runs) for t, runs in zip(tests, identify_runs, strict=True) if runs]
-    coordinates = parameterization.modal_coordinates()  # the search's (see its theta)
-    objective = Objective(
-        coordinates,
-        [t.model_test(runs) for t, runs in used],
-        [[t.estimates[i].drv_db for i in runs] for t, runs in used],
-    )
+    objective = _search_objective(tests, parameterization, identify_runs)
+    coordinates = objective.parameterization
     n_free = len(parameterization.free)
     stages = {
         "global": objective.replacing(realizations=settings.global_realizations),
@@ -423,14 +418,8 @@ def identify_from(
     """
     settings = settings or SearchSettings()
     began = time.perf_counter()
-    used = [(t, runs) for t, runs in zip(tests, identify_runs, strict=True) if runs]
-    coordinates = parameterization.modal_coordinates()
-    objective = Objective(
-        coordinates,
-        [t.model_test(runs) for t, runs in used],
-        [[t.estimates[i].drv_db for i in runs] for t, runs in used],
-    )
-    best = _unit_start(coordinates, start)
+    objective = _search_objective(tests, parameterization, identify_runs)
+    best = _unit_start(objective.parameterization, start)
     return _last_stages(
         tests,
         parameterization,
@@ -442,6 +431,21 @@ def identify_from(
         {},
         best,
         began,
+    )
+
+
+def _search_objective(
+    tests: Sequence[MeasuredTest],
+    parameterization: Parameterization,
+    identify_runs: Sequence[Sequence[int]],
+) -> Objective:
+    """Eq. (17) over the identification runs in the search's coordinates (modal: see
+    :meth:`Parameterization.theta`)."""
+    used = [(t, runs) for t, runs in zip(tests, identify_runs, strict=True) if runs]
+    return Objective(
+        parameterization.modal_coordinates(),
+        [t.model_test(runs) for t, runs in used],
+        [[t.estimates[i].drv_db for i in runs] for t, runs in used],
     )
 
 
