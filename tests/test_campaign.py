@@ -216,8 +216,8 @@ def test_a_signal_while_waiting_for_the_plan_stops_without_a_traceback(tmp_path:
 SPEEDUP = 2.0
 """Bus seconds per wall second of the virtual vehicle. The vehicle and the daemon share this
 process while the worker measures the planning information beside them: at 4x one CI run on a
-busy host starved the daemon's sender (pauses up to 0.58 s of bus time) and round 1 could not be
-identified, so the campaign stopped after it (correctly, saying why)."""
+busy host starved the daemon's sender (pauses up to 0.58 s of bus time) and the worker ended
+round 1 within seconds without a plan, so the campaign stopped after it."""
 
 
 def _serve_worker(pipeline: PipelineConfig, options: WorkerOptions) -> None:
