@@ -52,7 +52,7 @@ from dtid.identification.search.parameterization import (
     passenger_car_bounds,
 )
 from dtid.identification.search.start_values import start_thetas
-from dtid.identification.uncertainty.profile import Profile, profile, with_structure
+from dtid.identification.uncertainty.profile import THRESHOLD, Profile, profile, with_structure
 from dtid.jsonfile import finite, write_json
 from dtid.simulator.parameters import UNITS, DrivetrainParameters
 
@@ -207,7 +207,8 @@ class SearchRestart:
         head = (
             f"the profile of {self.parameter} found a better fit than the search (the search's "
             f"optimum {self.statistic:.1f} above the profile's minimum on the 95 % scale, "
-            "threshold 3.84): the search had ended at another optimum; restarted from there, "
+            f"threshold {THRESHOLD:.2f}, or its value outside the interval): the search had ended "
+            "at another optimum; restarted from there, "
             f"eq. (17) {self.objective_search:.4f} -> {self.objective_restart:.4f}"
         )
         if adopted:
