@@ -30,7 +30,7 @@ from pathlib import Path
 
 from benchmarks.identification_trial import PLAN, draw_truth, draw_vehicle
 from dtid.identification.diagnosis.diagnose import diagnose_report
-from dtid.identification.diagnosis.mismatch import mismatch_map
+from dtid.identification.diagnosis.mismatch import MismatchMap, mismatch_map
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import (
     identification_runs,
@@ -55,6 +55,19 @@ def recording(index: int) -> tuple[object, MeasuredTest]:
     return truth, MeasuredTest.from_data(f"vehicle {index}", data, 0.25, engine)
 
 
+def verdict(found: MismatchMap) -> dict[str, object]:
+    """A map's verdict, global p-value and bands (``frf @ A N*m: f_lo-f_hi Hz, excess, p``)."""
+    return {
+        "adequate": found.adequate,
+        "p": found.global_p_value,
+        "bands": [
+            f"{b.frf} @ {b.amplitude_nm:g} N*m: {b.f_lo_hz:.1f}-{b.f_hi_hz:.1f} Hz, "
+            f"{b.excess_db:+.2f} dB, p = {b.p_value:.1g}"
+            for b in found.bands
+        ],
+    }
+
+
 def main() -> None:
     """Run the calibration and print its counts."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -75,19 +88,16 @@ def main() -> None:
         )
         base = truth.replace(K=engine_gain([identifying]), T_loss=kept.idle_torque_nm)
         row: dict[str, object] = {"vehicle": index}
-        at_truth = mismatch_map(base, selections)
-        row["truth"] = {"adequate": at_truth.adequate, "p": at_truth.global_p_value}
+        row["truth"] = verdict(mismatch_map(base, selections))
         for item in args.errors:
             name, factor = item.split("=")
             wrong = base.replace(**{name: getattr(base, name) * float(factor)})
-            found = mismatch_map(wrong, selections)
-            row[item] = {"adequate": found.adequate, "p": found.global_p_value}
+            row[item] = verdict(mismatch_map(wrong, selections))
         if index < args.first + args.identified:
             report = run_identification([test], reference_parameters(), profile_points=0)
             diagnosis = diagnose_report(report)
             row["identified"] = {
-                "adequate": diagnosis.adequate,
-                "p": diagnosis.mismatch.global_p_value,
+                **verdict(diagnosis.mismatch),
                 "objective": report.identification.objective,
                 "objective_at_truth": report.fit_objective(truth),
             }
@@ -99,7 +109,9 @@ def main() -> None:
         if rows:
             flagged = sum(not r["adequate"] for r in rows)  # type: ignore[index]
             summary[key] = {"inadequate": flagged, "of": len(rows)}
-            print(f"{key:>10}: declared inadequate {flagged} of {len(rows)}")
+            engine = sum(any(b.startswith("eng") for b in r["bands"]) for r in rows)  # type: ignore[index]
+            summary[key]["with_eng_bands"] = engine
+            print(f"{key:>10}: declared inadequate {flagged} of {len(rows)} ({engine} in |G_ENG|)")
     document = {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "seconds": time.perf_counter() - began,

@@ -126,8 +126,9 @@ class Diagnosis:
         """The verdict in one sentence."""
         test = self.mismatch
         if self.adequate:
+            frfs = "|G_DRV| or |G_ENG|" if test.engine is not None else "|G_DRV|"
             text = (
-                "The identified model explains these recordings: no band of |G_DRV| differs "
+                f"The identified model explains these recordings: no band of {frfs} differs "
                 f"significantly (family-wise {100 * test.family_error:g} %; the largest "
                 f"deviation has p = {test.global_p_value:.2g})"
             )

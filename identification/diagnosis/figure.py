@@ -20,8 +20,9 @@ def mismatch_figure(diagnosis: Diagnosis, title: str = "") -> Figure:
     Top: measured (thin), identified model (thick) and, when a mechanism was accepted, the
     augmented model's (dotted) |G_DRV| of every run (validation dashed). Below: the mismatch map
     of the identified model, each run's standardised residual z = (measured - model) / scatter
-    over frequency at its amplitude, with the family-wise threshold and the significant bands
-    shaded; and, with an accepted mechanism, the same map of the augmented model.
+    over frequency at its amplitude (|G_ENG|'s dotted, in its run's colour), with |G_DRV|'s
+    family-wise threshold and the significant bands shaded; and, with an accepted mechanism, the
+    same map of the augmented model.
 
     Parameters
     ----------
@@ -36,23 +37,34 @@ def mismatch_figure(diagnosis: Diagnosis, title: str = "") -> Figure:
     if diagnosis.after is not None:
         maps.append((f"with {' + '.join(diagnosis.mechanisms)}", diagnosis.after))
     residuals = diagnosis.mismatch.residuals
+    runs = list(dict.fromkeys(residual.label for residual in residuals))
     figure = new_figure(figsize=(8, 4 + 3 * len(maps)))
     top, *rows = figure.subplots(1 + len(maps), 1, sharex=True)
-    colours = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(residuals), 1)))
+    shades = colormaps["viridis"](np.linspace(0.0, 0.85, max(len(runs), 1)))
+    colours = dict(zip(runs, shades[: len(runs)], strict=True))
     for k, residual in enumerate(residuals):
+        if residual.frf != "drv":
+            continue
         style = "--" if residual.role == "validation" else "-"
         label = f"{residual.amplitude_nm:g} N*m ({residual.role})"
-        f, colour = residual.frequency_hz, colours[k]
+        f, colour = residual.frequency_hz, colours[residual.label]
         top.plot(f, residual.measured_db, color=colour, linewidth=0.8, alpha=0.7)
         top.plot(f, residual.model_db, color=colour, linewidth=2, linestyle=style, label=label)
         if diagnosis.after is not None:
             augmented = diagnosis.after.residuals[k].model_db
             top.plot(f, augmented, color=colour, linewidth=1.5, linestyle=":")
     for axis, (name, found) in zip(rows, maps, strict=True):
-        for k, residual in enumerate(found.residuals):
-            style = "--" if residual.role == "validation" else "-"
+        for residual in found.residuals:
+            if residual.frf == "drv":
+                style, width = ("--" if residual.role == "validation" else "-"), 1.2
+            else:
+                style, width = ":", 1.0
             axis.plot(
-                residual.frequency_hz, residual.z, color=colours[k], linewidth=1.2, linestyle=style
+                residual.frequency_hz,
+                residual.z,
+                color=colours[residual.label],
+                linewidth=width,
+                linestyle=style,
             )
         for band in found.bands:
             axis.axvspan(band.f_lo_hz, band.f_hi_hz, color="tab:red", alpha=0.15)

@@ -2,7 +2,11 @@
 frequency and amplitude, and one global adequacy test.
 
 For every analysed chirp run (identifying and validating alike) the residual is the measured
-|G_DRV| minus the identified model's, in dB, bin by bin. Each is standardised by the scatter a
+|G_DRV| minus the identified model's, in dB, bin by bin, and likewise |G_ENG| (eq. 15: the mean
+torque per requested torque) where the recording carries the ECU's torque request: an
+engine-side effect (a torque lag, a sensor gain) shows there, a drivetrain one in |G_DRV|. The
+model's |G_ENG| comes from the same simulations as its |G_DRV| (its mean torque against the
+request its ECU held). Each is standardised by the scatter a
 recording of the model itself would show there, measured rather than assumed: the model repeats
 the recording ``draws`` times, each time as one recording (one realization, its own draws of the
 combustion variation and the sensors' noise as measured on the vehicle), and the spread of those
@@ -15,19 +19,21 @@ reported per band instead.
 
 Neighbouring bins are correlated (Hann window, half overlap, and the sweep itself). Their
 correlation is measured on the same draws (lag-one autocorrelation of the standardised deviations
-over frequency, pooled over runs) and gives the effective number of independent bins,
-M_eff = N (1 - rho) / (1 + rho). The bins' p-values (Student's t with the scatter's degrees of
-freedom) are compared with Sidak's threshold for a family-wise error rate ``family_error``
-(1 %) over M_eff tests. A band is a run of neighbouring bins whose residual has one sign and
-|z| >= ``EDGE_Z``, holding at least one bin past the threshold; its p-value is family-wise
-adjusted. The global test is the same statistic over every bin of every run: no band, no
-mismatch, and the answer is "the model explains these recordings".
+over frequency, pooled over runs, separately for each FRF, whose noise differs) and gives the
+effective number of independent bins, M_eff = N (1 - rho) / (1 + rho), summed over both. The
+bins' p-values (Student's t with the scatter's degrees of freedom) are compared with Sidak's
+threshold for a family-wise error rate ``family_error`` (1 %) over M_eff tests. A band is a
+run of neighbouring bins whose residual has one sign and |z| >= ``EDGE_Z``, holding at least
+one bin past the threshold; its p-value is family-wise adjusted. The global test is the same
+statistic over every bin of every run and both FRFs: no band, no mismatch, and the answer is
+"the model explains these recordings".
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -37,7 +43,7 @@ from scipy import stats
 
 from dtid.errors import AnalysisError, DtidError
 from dtid.identification.frf.closed_loop import FrfEstimate
-from dtid.identification.model.response import model_drv_db
+from dtid.identification.model.response import model_curves
 from dtid.identification.pipeline import IdentificationReport, RunSelection
 from dtid.simulator.parameters import DrivetrainParameters
 
@@ -55,6 +61,8 @@ NO_SCATTER_DB = 1e-6
 """A model whose draws scatter less than this (dB) draws no noise (rounding aside)."""
 DRAW_SEED = 7_000
 """First seed of the draws (apart from the identification's model seeds)."""
+FRFS = ("drv", "eng")
+"""The frequency responses the map compares: |G_DRV| (eq. 14) and |G_ENG| (eq. 15)."""
 
 
 @dataclass(frozen=True)
@@ -68,13 +76,13 @@ class RunResidual:
     role
         ``fit`` (an identifying run) or ``validation``.
     frf
-        ``drv`` (|G_DRV|).
+        ``drv`` (|G_DRV|) or ``eng`` (|G_ENG|).
     amplitude_nm
         The chirp's amplitude, N*m.
     frequency_hz
         Bins, Hz.
     measured_db, model_db
-        |G_DRV|, dB re 1 (rad/s)/(N*m).
+        |G_DRV|, dB re 1 (rad/s)/(N*m), or |G_ENG|, dB re 1.
     scatter_db
         Standard deviation of a recording's |G_DRV| about the model's, dB.
     z
@@ -175,6 +183,10 @@ class MismatchMap:
         Family-wise p-value of the largest |z| over every bin: below ``family_error`` iff any band.
     family_error
         The family-wise error rate.
+    engine
+        The same noise figures for |G_ENG| (None: no run has one). ``scatter_scale``,
+        ``correlation``, ``degrees_of_freedom`` and ``threshold_z`` above are |G_DRV|'s;
+        ``effective_bins`` counts both.
     """
 
     residuals: tuple[RunResidual, ...]
@@ -186,6 +198,7 @@ class MismatchMap:
     threshold_z: float
     global_p_value: float
     family_error: float = FAMILY_ERROR
+    engine: NoiseFigures | None = None
 
     @property
     def adequate(self) -> bool:
@@ -202,6 +215,41 @@ class MismatchMap:
             "degrees_of_freedom": self.degrees_of_freedom,
             "threshold_z": self.threshold_z,
             "global_p_value": self.global_p_value,
+            "eng": None if self.engine is None else self.engine.as_dict(),
+        }
+
+
+class NoiseFigures(NamedTuple):
+    """How one FRF's recordings scatter, as the map measured it (:func:`mismatch_map`).
+
+    Attributes
+    ----------
+    scatter_scale
+        Factor on the model's scatter for the recordings' roughness (:func:`scatter_scale`).
+    correlation
+        Lag-one correlation of neighbouring bins' deviations.
+    effective_bins
+        M_eff of this FRF's bins.
+    degrees_of_freedom
+        Of its bins' t statistics.
+    threshold_z
+        |z| a bin must pass.
+    """
+
+    scatter_scale: float
+    correlation: float
+    effective_bins: float
+    degrees_of_freedom: float
+    threshold_z: float
+
+    def as_dict(self) -> dict[str, float]:
+        """The figures as in the diagnosis JSON's ``test.eng``."""
+        return {
+            "scatter_scale": self.scatter_scale,
+            "effective_bins": self.effective_bins,
+            "bin_correlation": self.correlation,
+            "degrees_of_freedom": self.degrees_of_freedom,
+            "threshold_z": self.threshold_z,
         }
 
 
@@ -237,27 +285,29 @@ def mismatch_map(
         for role, selection in selections
         for run in model_scatter(parameters, role, selection, draws)
     ]
-    standard = [run.deviations / run.scatter_db for run in runs]
-    correlation = neighbour_correlation(standard)
-    scale = scatter_scale([run.residual_db / run.scatter_db for run in runs], standard)
-    n_bins = sum(len(run.model_db) for run in runs)
-    effective = max(1.0, n_bins * (1.0 - correlation) / (1.0 + correlation))
-    dof = (draws - 1) * max(1.0, SMOOTH_BINS * (1.0 - correlation) / (1.0 + correlation))
+    by_frf = {frf: [run for run in runs if run.frf == frf] for frf in FRFS}
+    by_frf = {frf: chosen for frf, chosen in by_frf.items() if chosen}
+    spread = {frf: _spread(chosen, draws) for frf, chosen in by_frf.items()}
+    effective = sum(figures.effective_bins for figures in spread.values())
     bin_error = 1.0 - (1.0 - family_error) ** (1.0 / effective)
-    threshold = float(stats.t.isf(bin_error / 2, dof))
+    figures = {
+        frf: f._replace(threshold_z=float(stats.t.isf(bin_error / 2, f.degrees_of_freedom)))
+        for frf, f in spread.items()
+    }
     residuals, bands = [], []
-    largest = 0.0
+    global_p = 1.0
     for run in runs:
-        estimate, scatter = run.estimate, run.scatter_db * scale
+        noise = figures[run.frf]
+        estimate, scatter = run.estimate, run.scatter_db * noise.scatter_scale
         with np.errstate(invalid="ignore", divide="ignore"):
             z = run.residual_db / scatter
         residual = RunResidual(
             run.label,
             run.role,
-            "drv",
+            run.frf,
             estimate.run.amplitude_nm,
             estimate.frequency_hz,
-            estimate.drv_db,
+            run.measured_db,
             run.model_db,
             scatter,
             z,
@@ -266,21 +316,34 @@ def mismatch_map(
         residuals.append(residual)
         finite = np.isfinite(z)
         if finite.any():
-            largest = max(largest, float(np.max(np.abs(z[finite]))))
-        bands.extend(find_bands(residual, threshold, effective, dof))
-    global_p = family_p_value(largest, effective, dof)
+            largest = float(np.max(np.abs(z[finite])))
+            global_p = min(global_p, family_p_value(largest, effective, noise.degrees_of_freedom))
+        bands.extend(find_bands(residual, noise.threshold_z, effective, noise.degrees_of_freedom))
     bands.sort(key=lambda band: (band.p_value, -abs(band.excess_db)))
+    drv = figures["drv"]
     return MismatchMap(
         tuple(residuals),
         tuple(bands),
-        scale,
+        drv.scatter_scale,
         effective,
-        correlation,
-        dof,
-        threshold,
+        drv.correlation,
+        drv.degrees_of_freedom,
+        drv.threshold_z,
         global_p,
         family_error,
+        figures.get("eng"),
     )
+
+
+def _spread(runs: Sequence[ModelScatter], draws: int) -> NoiseFigures:
+    """One FRF's noise figures over its runs (the threshold to be set over both FRFs)."""
+    standard = [run.deviations / run.scatter_db for run in runs]
+    correlation = neighbour_correlation(standard)
+    scale = scatter_scale([run.residual_db / run.scatter_db for run in runs], standard)
+    n_bins = sum(len(run.model_db) for run in runs)
+    effective = max(1.0, n_bins * (1.0 - correlation) / (1.0 + correlation))
+    dof = (draws - 1) * max(1.0, SMOOTH_BINS * (1.0 - correlation) / (1.0 + correlation))
+    return NoiseFigures(scale, correlation, effective, dof, math.nan)
 
 
 def adequacy(report: IdentificationReport) -> dict[str, Any] | None:
@@ -314,34 +377,42 @@ def adequacy_of(found: MismatchMap) -> dict[str, Any]:
 
 
 class ModelScatter(NamedTuple):
-    """One run's model curve and the scatter of the model's own recordings about it.
+    """One run's model curve of one FRF and the scatter of the model's own recordings about it.
 
     Attributes
     ----------
     label, role
         ``recording @ A N*m`` and ``fit`` / ``validation``.
+    frf
+        ``drv`` or ``eng``.
     estimate
-        The measured FRF.
+        The measured FRFs.
     model_db
-        The model's |G_DRV| (its antithetic realizations' mean), dB.
+        The model's |G_DRV| or |G_ENG| (its antithetic realizations' mean), dB.
     scatter_db
-        Standard deviation of one recording's |G_DRV| about it, dB (smoothed over
+        Standard deviation of one recording's curve about it, dB (smoothed over
         :data:`SMOOTH_BINS`, the model curve's own share added).
     deviations
-        (draws, bins) the draws' |G_DRV| less their mean, dB.
+        (draws, bins) the draws' curves less their mean, dB.
     """
 
     label: str
     role: str
+    frf: str
     estimate: FrfEstimate
     model_db: np.ndarray
     scatter_db: np.ndarray
     deviations: np.ndarray
 
     @property
+    def measured_db(self) -> np.ndarray:
+        """The recording's curve of this FRF, dB."""
+        return self.estimate.drv_db if self.frf == "drv" else self.estimate.eng_db
+
+    @property
     def residual_db(self) -> np.ndarray:
         """Measured minus model, dB."""
-        return self.estimate.drv_db - self.model_db
+        return self.measured_db - self.model_db
 
 
 def model_row(parameters: DrivetrainParameters | np.ndarray) -> np.ndarray:
@@ -363,9 +434,9 @@ def model_scatter(
     out = []
     for test, runs in zip(selection.tests, selection.runs, strict=True):
         model_test = test.model_test(runs)
-        model = model_drv_db(params, model_test)
+        model = model_curves(params, model_test)
         singles = [
-            model_drv_db(
+            model_curves(
                 params,
                 dataclasses.replace(
                     model_test,
@@ -379,26 +450,40 @@ def model_scatter(
         ]
         for position, i in enumerate(runs):
             estimate = test.estimates[i]
-            draws_db = np.array([single[position][0] for single in singles])
-            if not np.nanmax(np.nanstd(draws_db, axis=0), initial=0.0) > NO_SCATTER_DB:
-                raise AnalysisError(
-                    f"{test.name}: the model of this recording draws no noise (without a "
-                    "torque_request role the measured torque drives it, variation and all), so "
-                    "the diagnosis cannot tell a mismatch from the recording's scatter; map the "
-                    "ECU's torque request in the signal map (docs/vehicle.md) and record it"
+            label = f"{test.name} @ {estimate.run.amplitude_nm:g} N*m"
+            for frf in FRFS:
+                curve = model[position].drv_db if frf == "drv" else model[position].eng_db
+                if frf == "eng" and not (
+                    np.isfinite(estimate.eng).any() and np.isfinite(curve).any()
+                ):
+                    continue  # no torque request recorded, or a model driven by the torque
+                draws_db = np.array(
+                    [
+                        (s[position].drv_db if frf == "drv" else s[position].eng_db)[0]
+                        for s in singles
+                    ]
                 )
-            variance = smoothed(np.nanvar(draws_db, axis=0, ddof=1))
-            variance *= 1.0 + 1.0 / model_test.realizations
-            out.append(
-                ModelScatter(
-                    f"{test.name} @ {estimate.run.amplitude_nm:g} N*m",
-                    role,
-                    estimate,
-                    model[position][0],
-                    np.sqrt(variance),
-                    draws_db - np.nanmean(draws_db, axis=0),
+                if not np.nanmax(np.nanstd(draws_db, axis=0), initial=0.0) > NO_SCATTER_DB:
+                    raise AnalysisError(
+                        f"{test.name}: the model of this recording draws no noise (without a "
+                        "torque_request role the measured torque drives it, variation and all), "
+                        "so the diagnosis cannot tell a mismatch from the recording's scatter; "
+                        "map the ECU's torque request in the signal map (docs/vehicle.md) and "
+                        "record it"
+                    )
+                variance = smoothed(np.nanvar(draws_db, axis=0, ddof=1))
+                variance *= 1.0 + 1.0 / model_test.realizations
+                out.append(
+                    ModelScatter(
+                        label,
+                        role,
+                        frf,
+                        estimate,
+                        curve[0],
+                        np.sqrt(variance),
+                        draws_db - np.nanmean(draws_db, axis=0),
+                    )
                 )
-            )
     return out
 
 

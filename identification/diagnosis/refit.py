@@ -497,8 +497,9 @@ class Refit:
     def screen(self, found: MismatchMap, row: np.ndarray | None = None) -> list[Screened]:
         """Step 1 (see the module notes), at ``row`` (the identified model by default)."""
         row = kernel_parameters(self.parameters.as_array()) if row is None else row
-        scatter = np.concatenate([r.scatter_db for r in found.residuals if r.role == "fit"])
-        residual = np.concatenate([r.residual_db for r in found.residuals if r.role == "fit"])
+        fitted = [r for r in found.residuals if r.role == "fit" and r.frf == "drv"]
+        scatter = np.concatenate([r.scatter_db for r in fitted])
+        residual = np.concatenate([r.residual_db for r in fitted])
         extra = Extra(self.base, row, ())
         unit = extra.unit_of(row)
         steps = np.clip(unit + SCREEN_STEP, 0, 1) - np.clip(unit - SCREEN_STEP, 0, 1)

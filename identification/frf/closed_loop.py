@@ -253,7 +253,7 @@ def estimate_frf(
     if data.torque_request is not None and len(data.torque_request) > 1:
         u = _hold(data.torque_request, grid)
         _, s_zu = signal.csd(z, u, **welch)
-        eng = np.abs(s_zx / s_zu[keep]) / torque_hold_gain(f, speed_rpm)
+        eng = engine_magnitude(f, s_zx, s_zu[keep], speed_rpm)
         req = request_magnitude(f, s_zy, s_zu[keep], speed_rpm)
     else:
         eng = req = np.full_like(f, np.nan)
@@ -311,6 +311,18 @@ def request_magnitude(
     T_ecu is sampled at every crank event without a hold, so only the speed filter is corrected.
     """
     return np.abs(s_zy / s_zu) / speed_filter_gain(frequency_hz, speed_rpm)
+
+
+def engine_magnitude(
+    frequency_hz: np.ndarray, s_zx: np.ndarray, s_zu: np.ndarray, speed_rpm: float | np.ndarray
+) -> np.ndarray:
+    """|G_ENG| of eq. (15) from the cross-spectra with the test torque, 1: the measured mean torque
+    per requested torque T_ecu, the torque sensor's hold G_p removed (T_ecu is sampled at every
+    crank event without a hold).
+
+    ``speed_rpm`` may be one speed per row of the spectra (shape (n, 1)) for a batch of tests.
+    """
+    return np.abs(s_zx / s_zu) / torque_hold_gain(frequency_hz, speed_rpm)
 
 
 def drivetrain_magnitude(

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 
@@ -53,9 +54,10 @@ from dtid.identification.frf.closed_loop import (
     FrfEstimate,
     cross_spectra,
     drivetrain_magnitude,
+    engine_magnitude,
     request_magnitude,
 )
-from dtid.identification.model.idle_loop import IdleLoop
+from dtid.identification.model.idle_loop import SAMPLES_PER_STROKE, IdleLoop
 from dtid.identification.samples.testdata import Series
 from dtid.simulator.controller import IdleController
 from dtid.simulator.mechanisms import EXTRA_INDEX, KERNEL_WIDTH
@@ -230,6 +232,24 @@ class ModelTest:
         return params
 
 
+class ModelCurves(NamedTuple):
+    """The model's frequency responses of one measured chirp run, for many parameter sets.
+
+    Attributes
+    ----------
+    drv_db
+        (n, bins) |G_DRV| of eq. (14), dB re 1 (rad/s)/(N*m).
+    eng_db
+        (n, bins) |G_ENG| of eq. (15), dB re 1: the model's mean torque per its torque request
+        T_ecu. NaN where not asked for, and where the model's engine is not driven by a request
+        (a recording without the ``torque_request`` role drives it with the measured torque,
+        whose |G_ENG| the model would only repeat).
+    """
+
+    drv_db: np.ndarray
+    eng_db: np.ndarray
+
+
 def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
     """Model |G_DRV| in dB for many parameter sets, per measured chirp run of the test.
 
@@ -248,9 +268,30 @@ def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
         simulated engine could not idle through the run are NaN. Each row depends on its own
         parameter set only.
     """
+    return [curves.drv_db for curves in model_curves(params, test, engine=False)]
+
+
+def model_curves(params: np.ndarray, test: ModelTest, engine: bool = True) -> list[ModelCurves]:
+    """Model |G_DRV| and |G_ENG| in dB for many parameter sets, per measured chirp run.
+
+    The same simulations give both: |G_ENG| costs one more cross-spectrum per run.
+
+    Parameters
+    ----------
+    params, test
+        As :func:`model_drv_db`.
+    engine
+        Compute |G_ENG| too (NaN otherwise).
+
+    Returns
+    -------
+    list of ModelCurves
+        Per run of the test.
+    """
     n_sets, m = params.shape[0], test.realizations
     params = test.model_parameters(params)
-    out: list[np.ndarray] = [np.empty(0)] * len(test.estimates)
+    out: list[ModelCurves] = [ModelCurves(np.empty(0), np.empty(0))] * len(test.estimates)
+    engine = engine and test.input == "torque" and (test.loop is None or test.loop.by_request)
     for replay in test.replays:
         if replay.start_event is None:
             requests, reference, drive = replay.requests, None, None
@@ -272,17 +313,24 @@ def model_drv_db(params: np.ndarray, test: ModelTest) -> list[np.ndarray]:
             drive=drive,
         )
         for i in replay.runs:
-            out[i] = _run_db(batch, replay, test.estimates[i], test, n_sets)
+            out[i] = _run_curves(batch, replay, test.estimates[i], test, n_sets, engine)
     return out
 
 
-def _run_db(
-    batch: BatchResult, replay: Replay, estimate: FrfEstimate, test: ModelTest, n_sets: int
-) -> np.ndarray:
-    """|G_DRV| in dB of one run for every parameter set, on the measured grid."""
+def _run_curves(
+    batch: BatchResult,
+    replay: Replay,
+    estimate: FrfEstimate,
+    test: ModelTest,
+    n_sets: int,
+    engine: bool,
+) -> ModelCurves:
+    """|G_DRV| (and |G_ENG| if ``engine``) in dB of one run for every parameter set, on the
+    measured grid."""
     requests, start_s = replay.requests, estimate.run.start_s - replay.offset_s
     n_jobs, length = len(batch.status), estimate.n_events
     y, x, z = (np.zeros((n_jobs, length)) for _ in range(3))
+    u = np.zeros((n_jobs, length)) if engine else x  # the model's T_ecu
     from_request = test.input == "request"
     rate = np.ones(n_jobs)
     ok = np.zeros(n_jobs, dtype=bool)
@@ -291,6 +339,8 @@ def _run_db(
         loop = test.loop
         run_event = loop.event(float(loop.t[np.searchsorted(loop.t, estimate.run.start_s)]))
         recorded_z = loop.test_nm[run_event : run_event + length]
+        recorded_u = loop.drive_nm[run_event : run_event + length]
+        stroke_drive = loop.drive(replay.start_event)
     for job in np.flatnonzero(batch.status == 0):
         speed = batch.speed[job, : batch.n_speed[job]]
         torque = batch.torque[job, : batch.n_torque[job]]
@@ -304,6 +354,16 @@ def _run_db(
         held_torque = np.clip(np.searchsorted(torque[:, 0], t, side="right") - 1, 0, None)
         y[job] = speed[first : first + length, 1]
         x[job] = speed[first : first + length, 2] if from_request else torque[held_torque, 1]
+        if engine:
+            u[job] = speed[first : first + length, 2]
+        if engine and recorded_z is not None:
+            # the kernel reports the request a stroke latches, the drive held over the stroke;
+            # the vehicle's ECU held its request event by event: the model's T_ecu is that plus
+            # its own tracking command (the kernel's report less the stroke's drive; the speed
+            # sample n ends speed window n + 1, the next stroke is (n + 1) // SAMPLES_PER_STROKE)
+            rows = np.arange(first, first + length)
+            stroke = np.minimum((rows + 1) // SAMPLES_PER_STROKE, len(stroke_drive) - 1)
+            u[job] += recorded_u - stroke_drive[stroke]
         if recorded_z is None:
             held_request = np.searchsorted(requests.t, t, side="right") - 1
             z[job] = np.where(held_request >= 0, requests.value[held_request], 0.0)
@@ -312,9 +372,12 @@ def _run_db(
         rate[job] = 1.0 / np.median(np.diff(t))
         ok[job] = True
     db = np.full((n_sets, len(estimate.frequency_hz)), np.nan)
+    eng_db = db.copy()
     if not ok.any():
-        return db
+        return ModelCurves(db, eng_db)
     unit_frequency, s_zy, s_zx = cross_spectra(z, y, x, 1.0, estimate.nperseg)
+    if engine:
+        s_zu = cross_spectra(z, u, x, 1.0, estimate.nperseg)[1]
     m = test.realizations
     for row in range(n_sets):
         jobs = slice(row * m, (row + 1) * m)
@@ -327,4 +390,9 @@ def _run_db(
             frequency, s_zy[jobs].mean(axis=0), s_zx[jobs].mean(axis=0), y[jobs].mean()
         )
         db[row] = np.interp(estimate.frequency_hz, frequency, 20 * np.log10(magnitude))
-    return db
+        if engine:
+            gain = engine_magnitude(
+                frequency, s_zx[jobs].mean(axis=0), s_zu[jobs].mean(axis=0), y[jobs].mean()
+            )
+            eng_db[row] = np.interp(estimate.frequency_hz, frequency, 20 * np.log10(gain))
+    return ModelCurves(db, eng_db)
