@@ -83,7 +83,7 @@ def frf(
     -------
     list of FrfEstimate
         One per run, in time order: ``.frequency_hz``, ``.drv_db``, ``.eng_db``,
-        ``.coherence``, ``.engine_gain`` (eq. 24's K of the run).
+        ``.coherence``, ``.engine_gain`` (K, eq. 24).
 
     Raises
     ------

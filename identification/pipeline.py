@@ -2,7 +2,7 @@
 
 Validation data are held out: the identification sees each recording only up to
 :data:`HOLD_OUT_S` after its last identification run (before the next chirp, if that starts
-sooner), so K (eq. 3) comes from the identification runs alone and T_loss, the idle set-point
+sooner), so K (eq. 24) comes from the identification runs alone and T_loss, the idle set-point
 and the combustion variation from the idle before that time. A chirp recorded later (the
 validation chirp A3 of a vehicle test) cannot change the identified parameters: the worker
 identifies while A3 is still being recorded and gets what ``dtid identify`` gets from the whole
@@ -62,9 +62,9 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 OPERATING_POINT = ("K", "T_loss", "combustion_variation")
-"""What is measured of the operating point before the drivetrain fit, each fixable too: K (eq. 3,
-:func:`dtid.identification.search.identify.engine_gain`), T_loss (the idle torque, N*m) and the
-relative cycle-to-cycle variation of each stroke's mean torque that the model engine repeats
+"""What is measured of the operating point before the drivetrain fit, each fixable too: K
+(eq. 24), T_loss (the idle torque, N*m) and the relative cycle-to-cycle variation of each
+stroke's mean torque that the model engine repeats
 (:attr:`dtid.identification.model.test_setup.MeasuredTest.combustion_variation`). Measured at idle,
 the variation counts the torque sensor's noise in; where the vehicle's indicating system gives the
 COV of IMEP, that is the better value."""

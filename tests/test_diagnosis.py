@@ -97,9 +97,10 @@ def test_a_torque_lag_is_located_in_g_eng_where_the_analytic_lag_puts_it(referen
     towards K T_ecu by 1 - a, a = exp(-T/tau), T the stroke period, so the delivered torque is
     the request through L(z) = (1 - a) / (1 - a z^-1), z = exp(j 2 pi f T). The sensor sees what
     is delivered: |G_DRV| (speed per measured torque) keeps the drivetrain, |G_ENG| (measured per
-    requested torque) falls by |L|. The map of the true drivetrain without the lag locates it in
-    |G_ENG| at every amplitude, its residual following 20 log10 |L| (a closed form); with the lag
-    in the model, no |G_ENG| band is left."""
+    requested torque) falls by |L|. The map compares |G_ENG| in shape (its level is K's): the
+    true drivetrain without the lag is located in |G_ENG| at 10 N*m, above the model at the
+    bottom of the band and below it at the top, its residual following 20 log10 |L| (a closed
+    form) less one level; with the lag in the model, no |G_ENG| band is left."""
     lagging = SimulationOptions(effects=Effects({"tau_m": TAU_M}))
     plan = TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0, duration_s=40.0)
     data = from_simulation(simulate(reference, plan, lagging, seed=3))
@@ -107,22 +108,25 @@ def test_a_torque_lag_is_located_in_g_eng_where_the_analytic_lag_puts_it(referen
     chosen = [("fit", identification_runs(tests)), ("validation", validation_runs(tests))]
     without = mismatch_map(reference, chosen)
     engine_bands = [band for band in without.bands if band.frf == "eng"]
-    # the identifying runs; at 2 N*m the torque's scatter is 2-3 dB and no band passes
-    assert {round(band.amplitude_nm) for band in engine_bands} == {5, 10}
-    assert all(band.excess_db < -5.0 and band.peak_hz > 10.0 for band in engine_bands)
+    at_10 = [band for band in engine_bands if round(band.amplitude_nm) == 10]
+    assert any(b.excess_db > 2.0 and b.peak_hz < 4.0 for b in at_10), engine_bands
+    assert any(b.excess_db < -2.0 and b.peak_hz > 10.0 for b in at_10), engine_bands
+    assert without.engine is not None
     for residual in (r for r in without.residuals if r.frf == "eng"):
         stroke_s = 30.0 / data.speed.value.mean()  # pi of crank angle at the mean speed
         a = np.exp(-stroke_s / TAU_M)
         z = np.exp(2j * np.pi * residual.frequency_hz * stroke_s)
         lag_db = 20 * np.log10(np.abs((1 - a) / (1 - a / z)))
         assert lag_db[-1] < -5.0  # the lag is no small effect at the top of the band
-        misfit = residual.residual_db - lag_db
+        # the residual is the lag less the one level the map moved the model by
+        misfit = residual.residual_db - lag_db + without.engine.level_db
         # measured 0.15, 0.35 and 0.79 dB RMS at 10, 5 and 2 N*m: about a third of the scatter
         limit = 0.6 * np.sqrt(np.mean(residual.scatter_db**2))
         assert np.sqrt(np.mean(misfit**2)) < limit, (residual.label, misfit.round(2))
     lagged = kernel_parameters(reference.as_array(), Effects({"tau_m": TAU_M}))
     with_lag = mismatch_map(lagged, chosen)
     assert not [band for band in with_lag.bands if band.frf == "eng"], with_lag.bands
+    assert with_lag.engine is not None and abs(with_lag.engine.level_db) < 0.1
 
 
 def effective(amplitude: float, value: float, role: str = "fit", edge: bool = False):

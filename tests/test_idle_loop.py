@@ -24,7 +24,6 @@ from dtid.identification.model.idle_loop import (
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import TestData, from_simulation
-from dtid.identification.search.identify import engine_gain
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -106,7 +105,7 @@ def test_k_is_read_off_the_strokes_not_off_the_mean_of_g_eng(
     latch, which the controller shapes: measured +0.4 % (slow PI), -2.1 % (fast PI), +0.9 %
     (delayed PI), -2.1 % (PID)."""
     name, _, measured = vehicle
-    assert engine_gain([measured]) == pytest.approx(reference.K, rel=1e-6), name
+    assert measured.loop.engine_gain()[0] == pytest.approx(reference.K, rel=1e-6), name
     eq24 = np.mean([e.engine_gain for e in measured.estimates])
     if name in ("fast PI", "PID"):
         assert abs(eq24 / reference.K - 1) > 0.01, name

@@ -34,7 +34,11 @@ import numpy as np
 import pytest
 
 from dtid.identification.model.response import model_drv_db
-from dtid.identification.pipeline import IdentificationReport, run_identification
+from dtid.identification.pipeline import (
+    IdentificationReport,
+    identification_runs,
+    run_identification,
+)
 from dtid.identification.search.identify import Objective, SearchSettings, refine
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
@@ -132,6 +136,25 @@ def test_independent_vehicle(name: str) -> None:
     for pinned in ("J_sum", "x1", "x12", "eps12", "d12"):
         found = result.theta[pinned] / true_theta[pinned] - 1
         assert abs(found) <= TARGETS[pinned], f"{pinned} {found:+.3f}"
+
+
+@pytest.mark.parametrize("name", ["vehicle_1", "vehicle_2"])
+def test_k_read_stroke_by_stroke_is_within_a_fraction_of_a_percent(name: str) -> None:
+    """K of eq. (3) from the strokes of the identifying runs, each recording's slope weighted by
+    its request's spread: +0.08 % and -0.06 % of the truth, where eq. (24)'s mean |G_ENG| (which
+    the search holds) is off by -0.52 % and -0.87 %."""
+    tests, _, folder = _vehicle(name)
+    with (folder / "truth.toml").open("rb") as handle:
+        true_k = tomllib.load(handle)["drivetrain"]["K"]
+    selection = identification_runs(tests)
+    slopes = [
+        t.loop.engine_gain([(t.estimates[i].run.start_s, t.estimates[i].run.end_s) for i in runs])
+        for t, runs in zip(selection.tests, selection.runs, strict=True)
+    ]
+    k = sum(s * w for s, w in slopes) / sum(w for _, w in slopes)
+    assert k == pytest.approx(true_k, rel=0.003)
+    eq24 = np.mean([e.engine_gain for e in selection.estimates()])
+    assert abs(eq24 / true_k - 1) > 0.004
 
 
 @pytest.mark.slow

@@ -6,7 +6,13 @@ For every analysed chirp run (identifying and validating alike) the residual is 
 torque per requested torque) where the recording carries the ECU's torque request: an
 engine-side effect (a torque lag, a sensor gain) shows there, a drivetrain one in |G_DRV|. The
 model's |G_ENG| comes from the same simulations as its |G_DRV| (its mean torque against the
-request its ECU held). Each is standardised by the scatter a
+request its ECU held). Its level is K, which eq. (24) reads off the measured |G_ENG| itself but
+which the model's strokes scale by a transfer of the vehicle's timing (eq. 24 is 1-4 % off on
+some ECUs, :func:`dtid.identification.model.idle_loop.stroke_gain`), so |G_ENG| is compared in
+shape: the model's curves move by the one level that fits all runs best (``level_db``,
+reported: the K the model's own |G_ENG| asks for, against the identification's), and an
+engine path that differs over frequency (a torque lag) stays. Each is standardised by the
+scatter a
 recording of the model itself would show there, measured rather than assumed: the model repeats
 the recording ``draws`` times, each time as one recording (one realization, its own draws of the
 combustion variation and the sensors' noise as measured on the vehicle), and the spread of those
@@ -234,6 +240,9 @@ class NoiseFigures(NamedTuple):
         Of its bins' t statistics.
     threshold_z
         |z| a bin must pass.
+    level_db
+        The level moved onto the model's curves, dB (|G_ENG|: 20 log10 of the K its model asks
+        for over the identification's; 0 for |G_DRV|).
     """
 
     scatter_scale: float
@@ -241,6 +250,7 @@ class NoiseFigures(NamedTuple):
     effective_bins: float
     degrees_of_freedom: float
     threshold_z: float
+    level_db: float = 0.0
 
     def as_dict(self) -> dict[str, float]:
         """The figures as in the diagnosis JSON's ``test.eng``."""
@@ -250,6 +260,7 @@ class NoiseFigures(NamedTuple):
             "bin_correlation": self.correlation,
             "degrees_of_freedom": self.degrees_of_freedom,
             "threshold_z": self.threshold_z,
+            "level_db": self.level_db,
         }
 
 
@@ -291,7 +302,10 @@ def mismatch_map(
     effective = sum(figures.effective_bins for figures in spread.values())
     bin_error = 1.0 - (1.0 - family_error) ** (1.0 / effective)
     figures = {
-        frf: f._replace(threshold_z=float(stats.t.isf(bin_error / 2, f.degrees_of_freedom)))
+        frf: f._replace(
+            threshold_z=float(stats.t.isf(bin_error / 2, f.degrees_of_freedom)),
+            level_db=_level(by_frf[frf]) if frf == "eng" else 0.0,
+        )
         for frf, f in spread.items()
     }
     residuals, bands = [], []
@@ -299,8 +313,9 @@ def mismatch_map(
     for run in runs:
         noise = figures[run.frf]
         estimate, scatter = run.estimate, run.scatter_db * noise.scatter_scale
+        model_db = run.model_db + noise.level_db
         with np.errstate(invalid="ignore", divide="ignore"):
-            z = run.residual_db / scatter
+            z = (run.measured_db - model_db) / scatter
         residual = RunResidual(
             run.label,
             run.role,
@@ -308,7 +323,7 @@ def mismatch_map(
             estimate.run.amplitude_nm,
             estimate.frequency_hz,
             run.measured_db,
-            run.model_db,
+            model_db,
             scatter,
             z,
             estimate.coherence,
@@ -333,6 +348,17 @@ def mismatch_map(
         family_error,
         figures.get("eng"),
     )
+
+
+def _level(runs: Sequence[ModelScatter]) -> float:
+    """The one level, dB, that moves the model's curves of these runs closest to the measured,
+    each bin weighted by its inverse scatter variance."""
+    residual = np.concatenate([run.residual_db for run in runs])
+    weight = np.concatenate([run.scatter_db for run in runs]) ** -2.0
+    usable = np.isfinite(residual) & np.isfinite(weight)
+    if not usable.any():
+        return 0.0
+    return float(np.sum(residual[usable] * weight[usable]) / np.sum(weight[usable]))
 
 
 def _spread(runs: Sequence[ModelScatter], draws: int) -> NoiseFigures:

@@ -103,9 +103,6 @@ class FrfEstimate:
     def engine_gain(self) -> float:
         """K of eq. (24): mean of |G_ENG| over the band (NaN without a torque request).
 
-        Reported per run; the identification reads K stroke by stroke instead
-        (:func:`dtid.identification.model.idle_loop.stroke_gain` says why).
-
         Bins whose coherence is below :data:`GAIN_COHERENCE` are left out (all are used if none
         reaches it): there |G_ENG| is noise, and a few such bins move the mean by tens of %.
         """

@@ -1,9 +1,9 @@
 """Parameter identification, paper sections III and V: global then local search on eq. (17).
 
-K is taken first from the strokes (eq. 3, :func:`engine_gain`) and T_loss from the mean torque at
-idle; both are then held. The ten setup-4 parameters (or the free subset) are searched in their
-normalised [0, 1] box in four stages, each on a more exact and dearer objective (the model's
-realizations, see :mod:`dtid.identification.model.response`):
+K is taken first from |G_ENG| (eq. 24) and T_loss from the mean torque at idle; both are then
+held. The ten setup-4 parameters (or the free subset) are searched in their normalised [0, 1]
+box in four stages, each on a more exact and dearer objective (the model's realizations, see
+:mod:`dtid.identification.model.response`):
 
 1. differential evolution over the batched simulator (a whole population is one parallel
    simulator call), on one realization per set: it only has to find the basins; then a scan of
@@ -226,21 +226,19 @@ class Identification:
 
 
 def engine_gain(tests: Sequence[MeasuredTest]) -> float:
-    """K of eq. (3), held fixed in the search: the slope of each stroke's measured torque on
-    the request it took, over the strokes inside the tests' runs (the identifying runs, for
-    the identification), each recording with its own offset
-    (:func:`dtid.identification.model.idle_loop.stroke_gain`, which says why not eq. 24's mean
-    of |G_ENG|)."""
-    slopes = [
-        t.loop.engine_gain([(e.run.start_s, e.run.end_s) for e in t.estimates]) for t in tests
-    ]
-    slopes = [(k, weight) for k, weight in slopes if weight > 0]
-    if not slopes:
+    """Eq. (24): K as the mean of |G_ENG| over every run that has it.
+
+    Each recording's K read stroke by stroke is reported beside it
+    (:func:`dtid.identification.model.idle_loop.stroke_gain`, the identification JSON's
+    ``idle_loop.engine_gain``): more accurate, but not yet what the search holds (its notes say
+    why)."""
+    gains = [e.engine_gain for t in tests for e in t.estimates if np.isfinite(e.engine_gain)]
+    if not gains:
         raise AnalysisError(
-            "no recording carries the torque request T_ecu, so K (eq. 3) cannot be measured; "
+            "no recording carries the torque request T_ecu, so K (eq. 24) cannot be measured; "
             "map the torque_request role or fix K with --fix K=VALUE"
         )
-    return float(sum(k * w for k, w in slopes) / sum(w for _, w in slopes))
+    return float(np.mean(gains))
 
 
 AMPLITUDE_MATCH = 0.05

@@ -2,9 +2,8 @@
 
 The optimiser works on theta = (J_sum, x1, x12, c12, c23, d12, d23, Tc12, eps12, eps23), each
 normalised to [0, 1] within its bounds, with x1 = J1/(J1+J2) and x12 = (J1+J2)/(J1+J2+J3). T_loss
-and K are not identified by the drivetrain fit: K comes from the strokes (eq. 3,
-:func:`dtid.identification.search.identify.engine_gain`) and T_loss from the mean torque at
-idle. Any subset of theta can be fixed.
+and K are not identified by the drivetrain fit: K comes from |G_ENG| (eq. 24) and T_loss from the
+mean torque at idle. Any subset of theta can be fixed.
 """
 
 from __future__ import annotations
