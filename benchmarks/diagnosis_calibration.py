@@ -108,9 +108,8 @@ def main() -> None:
         rows = [case[key] for case in cases if key in case]
         if rows:
             flagged = sum(not r["adequate"] for r in rows)  # type: ignore[index]
-            summary[key] = {"inadequate": flagged, "of": len(rows)}
             engine = sum(any(b.startswith("eng") for b in r["bands"]) for r in rows)  # type: ignore[index]
-            summary[key]["with_eng_bands"] = engine
+            summary[key] = {"inadequate": flagged, "of": len(rows), "with_eng_bands": engine}
             print(f"{key:>10}: declared inadequate {flagged} of {len(rows)} ({engine} in |G_ENG|)")
     document = {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),

@@ -11,17 +11,17 @@ which the model's strokes scale by a transfer of the vehicle's timing (eq. 24 is
 some ECUs, :func:`dtid.identification.model.idle_loop.stroke_gain`), so |G_ENG| is compared in
 shape: the model's curves move by the one level that fits all runs best (``level_db``,
 reported: the K the model's own |G_ENG| asks for, against the identification's), and an
-engine path that differs over frequency (a torque lag) stays. Each is standardised by the
-scatter a
-recording of the model itself would show there, measured rather than assumed: the model repeats
-the recording ``draws`` times, each time as one recording (one realization, its own draws of the
-combustion variation and the sensors' noise as measured on the vehicle), and the spread of those
-|G_DRV| around their mean is the bin's measurement scatter. The model's own curve (the mean of
-its antithetic realizations) carries part of that scatter as well, 1/``realizations`` of its
-variance, which is added. The coherence formula of Bendat and Piersol (random error of |H| from
-gamma^2 and the number of averages) is not used: in a chirp each bin is seen by about two Welch
-segments, far from the many averages of stationary noise it assumes; the recorded coherence is
-reported per band instead.
+engine path that differs over frequency (a torque lag) stays.
+
+Each residual is standardised by the scatter a recording of the model itself would show there,
+measured rather than assumed: the model repeats the recording ``draws`` times, each time as one
+recording (one realization, its own draws of the combustion variation and the sensors' noise as
+measured on the vehicle), and the spread of those curves around their mean is the bin's measurement
+scatter. The model's own curve (the mean of its antithetic realizations) carries part of that
+scatter as well, 1/``realizations`` of its variance, which is added. The coherence formula of
+Bendat and Piersol (random error of |H| from gamma^2 and the number of averages) is not used: in a
+chirp each bin is seen by about two Welch segments, far from the many averages of stationary noise
+it assumes; the recorded coherence is reported per band instead.
 
 Neighbouring bins are correlated (Hann window, half overlap, and the sweep itself). Their
 correlation is measured on the same draws (lag-one autocorrelation of the standardised deviations
@@ -90,7 +90,7 @@ class RunResidual:
     measured_db, model_db
         |G_DRV|, dB re 1 (rad/s)/(N*m), or |G_ENG|, dB re 1.
     scatter_db
-        Standard deviation of a recording's |G_DRV| about the model's, dB.
+        Standard deviation of a recording's curve about the model's, dB.
     z
         (measured - model) / scatter.
     coherence

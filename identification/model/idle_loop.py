@@ -111,9 +111,6 @@ class IdleLoop:
     gain
         Least-squares K of the measured torque on the latched request (1 for a drive by
         measured torque).
-    stroke_t, stroke_request_nm, stroke_torque_nm
-        Each reported stroke's time (s), the request it took and its measured mean torque
-        (N*m), for K (:meth:`engine_gain`); empty for a drive by measured torque.
     residual_nm
         RMS of the measured torque less K times the latched request, N*m: the sensor's noise
         and the combustion variation when the latch is right.
@@ -121,6 +118,10 @@ class IdleLoop:
         The two told apart (:func:`dtid.identification.model.combustion.variation_and_noise`):
         relative variation of each stroke's delivered torque, 1, and the torque sensor's noise, N*m;
         NaN for a drive by measured torque.
+    stroke_t, stroke_request_nm, stroke_torque_nm
+        Each reported stroke's time (s), the request it took and its measured mean torque
+        (N*m), for K read stroke by stroke (:meth:`engine_gain`); empty for a drive by measured
+        torque.
     """
 
     mode: str
