@@ -69,11 +69,17 @@ class Mechanism:
         One sentence of physics.
     parameters
         Its parameters; the first is its *main* parameter (the magnitude of the effect).
+    path
+        Where it acts: ``"drivetrain"`` (between the measured mean torque and the measured
+        speed: it shows in |G_DRV|) or ``"engine"`` (between the ECU's torque request and the
+        delivered mean torque: it shows in |G_ENG|, eq. 15, which the drivetrain parameters do
+        not shape, while |G_DRV|, speed per *measured* torque, hardly sees it).
     """
 
     name: str
     physics: str
     parameters: tuple[MechanismParameter, ...]
+    path: str = "drivetrain"
 
     @property
     def main(self) -> MechanismParameter:
@@ -262,6 +268,7 @@ MECHANISMS: tuple[Mechanism, ...] = (
                 (0.03, 0.15),
             ),
         ),
+        path="engine",
     ),
     Mechanism(
         "torque_sensor_gain",

@@ -92,7 +92,18 @@ TAU_M = 0.03
 """Lag of the engine in the torque-lag test, s (the low end of the mechanism's typical range)."""
 
 
-def test_a_torque_lag_is_located_in_g_eng_where_the_analytic_lag_puts_it(reference):
+@pytest.fixture(scope="module")
+def lagging(reference):
+    """A recording of the reference vehicle whose engine lags by :data:`TAU_M`, its runs."""
+    lagging = SimulationOptions(effects=Effects({"tau_m": TAU_M}))
+    plan = TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0, duration_s=40.0)
+    data = from_simulation(simulate(reference, plan, lagging, seed=3))
+    tests = [MeasuredTest.from_data("lagging", data, 0.25, VehicleData())]
+    chosen = [("fit", identification_runs(tests)), ("validation", validation_runs(tests))]
+    return data, chosen
+
+
+def test_a_torque_lag_is_located_in_g_eng_where_the_analytic_lag_puts_it(reference, lagging):
     """An engine that delivers its request with a lag (``torque_lag``): each stroke's torque moves
     towards K T_ecu by 1 - a, a = exp(-T/tau), T the stroke period, so the delivered torque is
     the request through L(z) = (1 - a) / (1 - a z^-1), z = exp(j 2 pi f T). The sensor sees what
@@ -101,11 +112,7 @@ def test_a_torque_lag_is_located_in_g_eng_where_the_analytic_lag_puts_it(referen
     true drivetrain without the lag is located in |G_ENG| at 10 N*m, above the model at the
     bottom of the band and below it at the top, its residual following 20 log10 |L| (a closed
     form) less one level; with the lag in the model, no |G_ENG| band is left."""
-    lagging = SimulationOptions(effects=Effects({"tau_m": TAU_M}))
-    plan = TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0, duration_s=40.0)
-    data = from_simulation(simulate(reference, plan, lagging, seed=3))
-    tests = [MeasuredTest.from_data("lagging", data, 0.25, VehicleData())]
-    chosen = [("fit", identification_runs(tests)), ("validation", validation_runs(tests))]
+    data, chosen = lagging
     without = mismatch_map(reference, chosen)
     engine_bands = [band for band in without.bands if band.frf == "eng"]
     at_10 = [band for band in engine_bands if round(band.amplitude_nm) == 10]
@@ -127,6 +134,34 @@ def test_a_torque_lag_is_located_in_g_eng_where_the_analytic_lag_puts_it(referen
     with_lag = mismatch_map(lagged, chosen)
     assert not [band for band in with_lag.bands if band.frf == "eng"], with_lag.bands
     assert with_lag.engine is not None and abs(with_lag.engine.level_db) < 0.1
+
+
+def test_a_torque_lag_is_named_fitted_and_bounded_on_g_eng(reference, lagging, selections):
+    """The lag the map located is named: fitted on |G_ENG| (which |G_DRV| cannot, absorbing it),
+    significant, the held-out run's |G_ENG| closer, its profile interval holding the value the
+    recording was made with; the drivetrain re-polished with it stays at the truth. On the
+    recording without a lag the model is adequate and the lag is not called indistinguishable:
+    |G_ENG| would see one."""
+    _, chosen = lagging
+    baseline = {"parameters": {}, "nrmse": {}, "objective": 0.0}
+    diagnosis = diagnose(reference, chosen, baseline, mechanisms=["torque_lag"], profile_points=5)
+    assert diagnosis.mechanisms == ("torque_lag",), diagnosis.sentence()
+    (named,) = diagnosis.accepted
+    assert named.frf == "eng" and named.p_value < 1e-6 and named.validation_gain > 0.2
+    # measured 0.0305 s, interval 0.0291-0.0315 s
+    assert named.parameters()["tau_m"] == pytest.approx(TAU_M, rel=0.05)
+    interval = diagnosis.intervals["tau_m"]
+    assert interval["verdict"] == "practical" and interval["lower"] < TAU_M < interval["upper"]
+    drivetrain = named.drivetrain()
+    for name in ("J1", "J2", "J3", "c12", "c23"):  # measured within 0.8 %
+        assert getattr(drivetrain, name) == pytest.approx(getattr(reference, name), rel=0.03)
+    assert diagnosis.after is not None and diagnosis.after.adequate, diagnosis.after.bands
+    assert "torque_lag explains it" in diagnosis.sentence()
+
+    quiet = diagnose(reference, selections, baseline, mechanisms=["torque_lag"])
+    assert quiet.adequate and not quiet.candidates
+    assert [(s.mechanism, s.frf) for s in quiet.screened] == [("torque_lag", "eng")]
+    assert "torque_lag" not in quiet.indistinguishable
 
 
 def effective(amplitude: float, value: float, role: str = "fit", edge: bool = False):

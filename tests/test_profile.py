@@ -27,7 +27,7 @@ from dtid.identification.uncertainty.profile import (
     LOCAL_BINS,
     THRESHOLD,
     Profile,
-    _interval_and_verdict,
+    interval_and_verdict,
     independent_bins,
     nested_p_value,
     profile,
@@ -153,14 +153,14 @@ def test_independent_bins_of_white_and_of_smooth_residuals() -> None:
 def test_interval_from_threshold_crossings() -> None:
     values = np.linspace(0, 6, 7)
     stat = np.array([9.0, 4.0, 1.0, 0.0, 1.0, 2.0, 3.0])
-    (lower, upper), verdict = _interval_and_verdict(values, stat, 3.0)
+    (lower, upper), verdict = interval_and_verdict(values, stat, 3.0)
     # between 1 and 2, linear in the root of lambda (1 at 2, 2 at 1)
     assert lower == pytest.approx(2 - (np.sqrt(THRESHOLD) - 1.0) / (2.0 - 1.0))
     assert upper is None and verdict == "structural"
-    (lower, upper), verdict = _interval_and_verdict(values, np.zeros(7), 3.0)
+    (lower, upper), verdict = interval_and_verdict(values, np.zeros(7), 3.0)
     assert (lower, upper, verdict) == (None, None, "no")
     stat = np.array([9.0, 5.0, 1.0, 0.0, 1.0, 5.0, 9.0])
-    (lower, upper), verdict = _interval_and_verdict(values, stat, 3.0)
+    (lower, upper), verdict = interval_and_verdict(values, stat, 3.0)
     assert verdict == "practical" and 1 < lower < 2 and 4 < upper < 5
 
 
@@ -171,7 +171,7 @@ def test_interval_of_a_quadratic_profile_from_coarse_points() -> None:
     for spacing in (0.15, 0.5, 1.0):
         values = 3.0 + spacing * np.arange(-3, 4)
         stat = ((values - 3.0) / 0.1) ** 2
-        (lower, upper), verdict = _interval_and_verdict(values, stat, 3.0)
+        (lower, upper), verdict = interval_and_verdict(values, stat, 3.0)
         half = np.sqrt(THRESHOLD) * 0.1
         assert verdict == "practical"
         assert (lower, upper) == (pytest.approx(3.0 - half), pytest.approx(3.0 + half))
@@ -180,7 +180,7 @@ def test_interval_of_a_quadratic_profile_from_coarse_points() -> None:
 def test_interval_ends_at_a_model_that_cannot_idle() -> None:
     values = np.linspace(0, 6, 7)
     stat = np.array([np.inf, np.inf, 1.0, 0.0, 1.0, 2.0, 3.0])
-    (lower, upper), _ = _interval_and_verdict(values, stat, 3.0)
+    (lower, upper), _ = interval_and_verdict(values, stat, 3.0)
     assert lower == 1.0 and upper is None
 
 
@@ -258,7 +258,7 @@ def test_interval_contains_the_truth_on_noisy_data(reference: DrivetrainParamete
 def test_interval_is_ordered_when_the_minimum_is_off_the_optimum() -> None:
     values = np.linspace(0, 6, 7)
     stat = np.array([9.0, 5.0, 0.0, 1.0, 2.0, 5.0, 9.0])  # minimum at 2
-    (lower, upper), verdict = _interval_and_verdict(values, stat, 2.0)
+    (lower, upper), verdict = interval_and_verdict(values, stat, 2.0)
     assert verdict == "practical" and lower < 2.0 < upper
 
 

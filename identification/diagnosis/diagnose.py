@@ -21,6 +21,11 @@ from typing import Any
 import numpy as np
 
 from dtid.errors import ConfigError
+from dtid.identification.diagnosis.engine_path import (
+    diagnose_engine,
+    engine_interval,
+    engine_mechanisms,
+)
 from dtid.identification.diagnosis.hints import EffectiveValue, effective_values
 from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
 from dtid.identification.diagnosis.refit import (
@@ -103,11 +108,11 @@ class Diagnosis:
         if not (self.adequate or self.accepted):
             return ()
         significant = {c.mechanisms[-1] for c in self.candidates if c.p_value < ACCEPT_P}
-        threshold = (self.after or self.mismatch).threshold_z
+        found = self.after or self.mismatch
         return tuple(
             s.mechanism
             for s in self.screened
-            if not s.detectable(threshold)
+            if not s.detectable(found.threshold_of(s.frf))
             and s.mechanism not in significant
             and s.mechanism not in self.mechanisms
         )
@@ -212,7 +217,8 @@ class Diagnosis:
                     "mechanism": s.mechanism,
                     "visible_z": s.visible_z,
                     "gain": s.gain,
-                    "detectable": s.detectable(self.mismatch.threshold_z),
+                    "detectable": s.detectable(self.mismatch.threshold_of(s.frf)),
+                    "frf": s.frf,
                 }
                 for s in self.screened
             ],
@@ -339,19 +345,35 @@ def diagnose(
     roles = dict(selections)
     refit = Refit(parameters, roles["fit"], roles.get("validation"))
     allowed = list(BY_NAME) if mechanisms is None else list(mechanisms)
-    screened: list[Screened] = refit.screen(found) if allowed else []
-    screened = [s for s in screened if s.mechanism in allowed]
-    candidates: list[Candidate] = []
-    accepted: list[Candidate] = []
+    on_engine = engine_mechanisms(found, allowed)
+    drivetrain = [m for m in allowed if BY_NAME[m] not in on_engine]
+    screened, candidates, engine = diagnose_engine(refit, found, on_engine)
+    accepted: list[Candidate] = [engine] if engine else []
+    refit = dataclasses.replace(refit, held=engine.mechanisms if engine else ())
+    # the drivetrain's mechanisms answer the map of the model with the engine's accepted
+    start = found if engine is None else mismatch_map(engine.row, selections, draws)
+    if drivetrain:
+        at = None if engine is None else engine.row
+        screened += [s for s in refit.screen(start, at) if s.mechanism in drivetrain]
+    if any(band.frf == "drv" for band in start.bands) and drivetrain:
+        screened_drv, tried, accepted_drv = diagnose_mechanisms(
+            refit, start, drivetrain, [s for s in screened if s.frf == "drv"], engine
+        )
+        screened = [s for s in screened if s.frf == "eng"] + screened_drv
+        candidates = sorted([*candidates, *tried], key=lambda c: c.criterion)
+        accepted += accepted_drv
     after = intervals = None
-    if not found.adequate and allowed:
-        screened, candidates, accepted = diagnose_mechanisms(refit, found, allowed, screened)
-        if accepted:
+    if accepted:
+        after = start
+        if accepted[-1] is not engine:
             after = mismatch_map(accepted[-1].row, selections, draws)
             rescreened = {x.mechanism: x for x in refit.screen(after, accepted[-1].row)}
-            screened = [rescreened.get(x.mechanism, x) for x in screened]
-            if profile_points > 0:
-                intervals = refit.intervals(accepted[-1], profile_points)
+            screened = [rescreened.get(x.mechanism, x) if x.frf == "drv" else x for x in screened]
+        if profile_points > 0:
+            intervals = {
+                **(engine_interval(refit, found, engine) if engine else {}),
+                **refit.intervals(accepted[-1], profile_points),
+            }
     hints = () if found.adequate or accepted else tuple(effective_values(parameters, selections))
     diagnosis = Diagnosis(
         baseline,

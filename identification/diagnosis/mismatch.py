@@ -211,6 +211,12 @@ class MismatchMap:
         """True when nothing is significant: the model explains the recordings."""
         return not self.bands
 
+    def threshold_of(self, frf: str) -> float:
+        """|z| a bin of ``frf`` (``drv`` or ``eng``) must pass."""
+        if frf == "eng" and self.engine is not None:
+            return self.engine.threshold_z
+        return self.threshold_z
+
     def as_dict(self) -> dict[str, object]:
         """The map's figures for the diagnosis JSON (``test``)."""
         return {

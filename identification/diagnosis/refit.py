@@ -56,7 +56,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from dtid.identification.diagnosis.mismatch import MismatchMap
-from dtid.identification.model.response import model_drv_db
+from dtid.identification.model.response import model_curves, model_drv_db
 from dtid.identification.pipeline import RunSelection
 from dtid.identification.search.identify import Objective, SearchSettings, refine
 from dtid.identification.search.objective import nrmse
@@ -177,6 +177,9 @@ class Screened:
     ladder
         Every magnitude the screen tried (SI units) with the drivetrain's normalised free values
         that best accompany it (linearised from the screened model): where refits start.
+    frf
+        Where it was screened: ``drv`` (|G_DRV|, here) or ``eng`` (|G_ENG|, an engine-path
+        mechanism, :mod:`dtid.identification.diagnosis.engine_path`).
     """
 
     mechanism: str
@@ -184,6 +187,7 @@ class Screened:
     gain: float
     start: float
     ladder: tuple[tuple[float, np.ndarray], ...] = dataclasses.field(repr=False, default=())
+    frf: str = "drv"
 
     def detectable(self, threshold_z: float) -> bool:
         """Whether the data can see it at all (its imitation-free effect passes the map's
@@ -218,6 +222,10 @@ class Candidate:
         p < :data:`ACCEPT_P` and the held-out NRMSE fell, below both the model it extends and
         the identified model (a refitted baseline can fit the held-out runs worse than the
         identification did).
+    frf
+        The FRF whose likelihood ratio and held-out runs tested it: ``drv`` (|G_DRV|), or
+        ``eng`` (|G_ENG|, an engine-path mechanism, whose ``validation_gain`` is then the fall
+        of the held-out runs' RMS z; :mod:`dtid.identification.diagnosis.engine_path`).
     """
 
     mechanisms: tuple[str, ...]
@@ -229,6 +237,7 @@ class Candidate:
     criterion: float
     validation_gain: float
     accepted: bool
+    frf: str = "drv"
 
     def parameters(self) -> dict[str, float]:
         """The added mechanisms' parameter values, SI units."""
@@ -255,6 +264,7 @@ class Candidate:
             "criterion": self.criterion,
             "validation_gain": self.validation_gain,
             "accepted": self.accepted,
+            "frf": self.frf,
         }
 
 
@@ -274,6 +284,9 @@ class Refit:
         The identification's prior: its start values (with J_sum from the FRFs' asymptote,
         :func:`dtid.identification.search.start_values.start_thetas`) seed every refit's
         evolution, as they seeded the identification's.
+    held
+        Mechanisms in the model whose parameters no |G_DRV| refit moves: an engine-path
+        mechanism fitted on |G_ENG| (:mod:`dtid.identification.diagnosis.engine_path`).
     """
 
     parameters: DrivetrainParameters
@@ -281,6 +294,7 @@ class Refit:
     validation: RunSelection | None = None
     settings: SearchSettings = REFIT_SETTINGS
     prior: DrivetrainParameters = dataclasses.field(default_factory=reference_parameters)
+    held: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         p = self.parameters
@@ -289,6 +303,11 @@ class Refit:
         self.start_unit = self.base.unit(
             np.array([[theta_from_parameters(p)[n] for n in THETA_NAMES]])
         )[0]
+
+    def searched(self, names: Sequence[str]) -> tuple[Mechanism, ...]:
+        """The mechanisms among ``names`` whose parameters a |G_DRV| refit searches (all but
+        the held ones)."""
+        return tuple(BY_NAME[name] for name in names if name not in self.held)
 
     def objective(self, extra: Extra, realizations: int | None = None) -> Objective:
         """Eq. (17) on the identifying runs, over the base's and ``extra``'s free values."""
@@ -307,9 +326,10 @@ class Refit:
         selection: RunSelection | None = None,
         realizations: int | None = None,
         seed: int | None = None,
+        frf: str = "drv",
     ) -> list[np.ndarray]:
-        """Model |G_DRV| (n, bins) per run of a selection (the identifying runs by default), on
-        the search's realizations or those given."""
+        """Model |G_DRV| (or |G_ENG|, ``frf="eng"``) (n, bins) per run of a selection (the
+        identifying runs by default), on the search's realizations or those given."""
         selection = selection or self.fit
         out = []
         for test, runs in zip(selection.tests, selection.runs, strict=True):
@@ -318,7 +338,10 @@ class Refit:
                 model_test = dataclasses.replace(model_test, realizations=realizations)
             if seed is not None:
                 model_test = dataclasses.replace(model_test, seed=seed)
-            out.extend(model_drv_db(rows, model_test))
+            if frf == "drv":
+                out.extend(model_drv_db(rows, model_test))
+            else:
+                out.extend(curves.eng_db for curves in model_curves(rows, model_test))
         return out
 
     def run_nrmse(self, row: np.ndarray) -> dict[str, dict[str, float]]:
@@ -426,7 +449,7 @@ class Refit:
         start = candidate.row.copy()
         for spec in newest.parameters:
             start[EXTRA_INDEX[spec.name]] = spec.neutral
-        extra = Extra(self.base, start, tuple(BY_NAME[m] for m in current))
+        extra = Extra(self.base, start, self.searched(current))
         unit, _ = refine(self.objective(extra), extra.unit_of(start), self.settings)
         null_row = extra.parameters(unit[None])[0]
         again = self.test(
@@ -450,7 +473,7 @@ class Refit:
         can end further away (the blind trial's quadratic damping: c12 -58 %, docs/
         diagnosis.md).
         """
-        present = _with(row, mechanism, mechanism.main.typical[1])
+        present = with_mechanism(row, mechanism, mechanism.main.typical[1])
         extra = Extra(self.base, row, ())
         curves = iter(self.curves(present[None]))
         measured = [[next(curves)[0] for _ in runs] for runs in self.fit.runs]
@@ -474,9 +497,9 @@ class Refit:
     def intervals(self, candidate: Candidate, points: int) -> dict[str, dict[str, object]]:
         """Profile-likelihood 95 % intervals and verdicts of an accepted candidate's mechanism
         parameters (:func:`dtid.identification.uncertainty.profile.profile`, ``points`` grid
-        values each), the rest re-optimised at every point."""
-        mechanisms = tuple(BY_NAME[m] for m in candidate.mechanisms)
-        extra = Extra(self.base, candidate.row, mechanisms)
+        values each), the rest re-optimised at every point; the held ones' come from |G_ENG|
+        (:func:`dtid.identification.diagnosis.engine_path.engine_interval`)."""
+        extra = Extra(self.base, candidate.row, self.searched(candidate.mechanisms))
         objective = self.objective(extra)
         measured = [e.drv_db for e in self.fit.estimates()]
         unit = extra.unit_of(candidate.row)
@@ -510,7 +533,7 @@ class Refit:
         for mechanism in MECHANISMS:
             for value in _magnitudes(mechanism):
                 trials.append((mechanism.name, value))
-                rows.append(_with(row, mechanism, value)[None])
+                rows.append(with_mechanism(row, mechanism, value)[None])
         curves = np.hstack(self.curves(np.vstack(rows)))
         n = len(unit)
         jac = ((curves[:n] - curves[n : 2 * n]) / steps[:, None] / scatter).T
@@ -562,7 +585,7 @@ class Refit:
             lam, single = 0.0, 1.0
         else:
             lam = statistic(measured, after_db, before_db)
-            fitted = len(Extra(self.base, row, tuple(BY_NAME[m] for m in mechanisms)).free)
+            fitted = len(Extra(self.base, row, self.searched(mechanisms)).free)
             single = nested_p_value(lam, k, independent_bins(measured, after_db), fitted)
         p_value = 1.0 if single >= 1.0 else float(-np.expm1(tried * np.log1p(-single)))
         scores = self.run_nrmse(row)
@@ -674,7 +697,7 @@ def _magnitudes(mechanism: Mechanism) -> list[float]:
     return values
 
 
-def _with(row: np.ndarray, mechanism: Mechanism, value: float) -> np.ndarray:
+def with_mechanism(row: np.ndarray, mechanism: Mechanism, value: float) -> np.ndarray:
     """``row`` with a mechanism's main parameter at ``value`` and its others in the middle of
     their typical ranges."""
     out = row.copy()
@@ -690,6 +713,7 @@ def diagnose_mechanisms(
     found: MismatchMap,
     allowed: Sequence[str] | None = None,
     screened: Sequence[Screened] | None = None,
+    start: Candidate | None = None,
 ) -> tuple[list[Screened], list[Candidate], list[Candidate]]:
     """Screen, refit and test (the module notes).
 
@@ -703,6 +727,10 @@ def diagnose_mechanisms(
         Mechanisms to consider (default: the whole library).
     screened
         The screen, if already made (:meth:`Refit.screen`).
+    start
+        An accepted engine-path candidate (:mod:`dtid.identification.diagnosis.engine_path`):
+        the refits start from its model and hold its mechanism (``refit.held``); the
+        candidates extend it.
 
     Returns
     -------
@@ -715,19 +743,23 @@ def diagnose_mechanisms(
     chosen = screened[:REFIT_COUNT]
     if not chosen:
         return screened, [], []
-    neutral = kernel_parameters(refit.parameters.as_array())
-    baseline_row, _ = refit.refit(Extra(refit.base, neutral, ()))
+    held = start.mechanisms if start else ()
+    initial = start.row if start else kernel_parameters(refit.parameters.as_array())
+    baseline_row, _ = refit.refit(Extra(refit.base, initial, ()))
     tried: list[Candidate] = []
     accepted: list[Candidate] = []
-    current, current_row, pool = (), baseline_row, list(chosen)
+    current, current_row, pool = held, baseline_row, list(chosen)
     while pool and len(current) < MAX_MECHANISMS:
         round_ = []
         for s in pool:
             mechanism = BY_NAME[s.mechanism]
-            mechanisms = tuple(BY_NAME[m] for m in (*current, s.mechanism))
+            mechanisms = refit.searched((*current, s.mechanism))
             extra = Extra(refit.base, current_row, mechanisms)  # from the model before, neutral
             ladder = [
-                (_with(current_row, mechanism, value), None if current else target)
+                (
+                    with_mechanism(current_row, mechanism, value),
+                    None if len(current) > len(held) else target,
+                )
                 for value, target in s.ladder
             ]
             row, _ = refit.refit(extra, ladder)

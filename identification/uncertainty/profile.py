@@ -418,11 +418,12 @@ def correlation_length(residual: np.ndarray) -> float:
     return max(BIN_CORRELATION, 1.0 + 2.0 * float(positive.sum()))
 
 
-def _interval_and_verdict(
+def interval_and_verdict(
     values: np.ndarray, stat: np.ndarray, best_value: float
 ) -> tuple[tuple[float | None, float | None], str]:
     """Where the statistic (less its margin) crosses the threshold on each side of the
-    optimum."""
+    optimum: ``((lower, upper), verdict)``, an end None where the statistic stays below the
+    threshold on that side; verdict ``practical`` (both ends), ``structural`` (one) or ``no``."""
     below, above = values <= best_value, values >= best_value
     lower = upper = None
     left = np.flatnonzero(below & (stat > THRESHOLD))
@@ -654,7 +655,7 @@ def profile(
     best_objective = np.array([evaluated[u][0] for u in grid_unit])
     stat, margin = np.array([stat_and_margin(u) for u in grid_unit]).T
     values = lowest + grid_unit * (highest - lowest)
-    interval, verdict = _interval_and_verdict(
+    interval, verdict = interval_and_verdict(
         values, stat - margin, lowest + minimum() * (highest - lowest)
     )
     on_grid = np.isin(grid_unit, grid)
