@@ -56,13 +56,14 @@ def recording(index: int) -> tuple[object, MeasuredTest]:
 
 
 def verdict(found: MismatchMap) -> dict[str, object]:
-    """A map's verdict, global p-value and bands (``frf @ A N*m: f_lo-f_hi Hz, excess, p``)."""
+    """A map's verdict, global p-value and bands (``frf @ A N*m: f_lo-f_hi Hz, excess, p,
+    kind``)."""
     return {
         "adequate": found.adequate,
         "p": found.global_p_value,
         "bands": [
             f"{b.frf} @ {b.amplitude_nm:g} N*m: {b.f_lo_hz:.1f}-{b.f_hi_hz:.1f} Hz, "
-            f"{b.excess_db:+.2f} dB, p = {b.p_value:.1g}"
+            f"{b.excess_db:+.2f} dB, p = {b.p_value:.1g}, {b.kind}"
             for b in found.bands
         ],
     }
@@ -109,8 +110,17 @@ def main() -> None:
         if rows:
             flagged = sum(not r["adequate"] for r in rows)  # type: ignore[index]
             engine = sum(any(b.startswith("eng") for b in r["bands"]) for r in rows)  # type: ignore[index]
-            summary[key] = {"inadequate": flagged, "of": len(rows), "with_eng_bands": engine}
-            print(f"{key:>10}: declared inadequate {flagged} of {len(rows)} ({engine} in |G_ENG|)")
+            trend = sum(any(b.endswith("trend") for b in r["bands"]) for r in rows)  # type: ignore[index]
+            summary[key] = {
+                "inadequate": flagged,
+                "of": len(rows),
+                "with_eng_bands": engine,
+                "with_trend_bands": trend,
+            }
+            print(
+                f"{key:>10}: declared inadequate {flagged} of {len(rows)} ({engine} in |G_ENG|, "
+                f"{trend} with a trend)"
+            )
     document = {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "seconds": time.perf_counter() - began,

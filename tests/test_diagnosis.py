@@ -19,11 +19,15 @@ from dtid.identification.diagnosis.diagnose import amplitude_trend, diagnose, di
 from dtid.identification.diagnosis.hints import EffectiveValue
 from dtid.identification.diagnosis.mismatch import (
     EDGE_Z,
+    TREND_DEGREE,
+    TREND_LAGS,
     RunResidual,
+    bin_autocorrelation,
     family_p_value,
     find_bands,
     mismatch_map,
     neighbour_correlation,
+    trend_test,
 )
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs, validation_runs
@@ -76,8 +80,9 @@ def test_a_wrong_dmf_stiffness_is_located_at_the_dmf_mode_and_the_hint_finds_the
     low = 3.0
     first = diagnosis.mismatch.bands[0]
     assert first.p_value < 1e-6
-    strong = [band for band in diagnosis.mismatch.bands if band.p_value < 1e-4]
-    assert all(low < band.peak_hz < 12.5 for band in strong), strong
+    bins = [band for band in diagnosis.mismatch.bands if band.kind == "bins"]
+    strong = [band for band in bins if band.p_value < 1e-4]
+    assert strong and all(low < band.peak_hz < 12.5 for band in strong), strong
     assert {band.amplitude_nm for band in diagnosis.mismatch.bands} >= {5.0, 10.0}
     # each identifying run on its own asks for the stiffness the data were made with
     for hint in diagnosis.hints:
@@ -200,6 +205,35 @@ def test_neighbour_correlation_of_an_ar1_sequence():
         series[:, i] = rho * series[:, i - 1] + np.sqrt(1 - rho**2) * noise[:, i]
     assert neighbour_correlation([series]) == pytest.approx(rho, abs=0.02)
     assert neighbour_correlation([rng.standard_normal((8, n))]) == pytest.approx(0.0, abs=0.02)
+
+
+def test_the_trend_test_is_chi_square_on_correlated_bins_and_finds_a_slope_no_bin_shows():
+    """On AR(1) noise over 48 bins (lag-one correlation 0.45, as the map measures on its draws),
+    with the correlation measured from other draws, T^2 rejects at a nominal 5 % in 5 % of
+    sequences (chi-square with four degrees of freedom); a slope of 2.4 scatters over the band,
+    each bin within its threshold, is found at p < 1e-4, and the trend returned is the slope."""
+    rng = np.random.default_rng(11)
+    rho, n, count = 0.45, 48, 4000
+
+    def ar1(rows: int) -> np.ndarray:
+        noise = rng.standard_normal((rows, n))
+        out = np.empty_like(noise)
+        out[:, 0] = noise[:, 0]
+        for i in range(1, n):
+            out[:, i] = rho * out[:, i - 1] + np.sqrt(1 - rho**2) * noise[:, i]
+        return out
+
+    f = np.linspace(1.5, 14.5, n)
+    acf = bin_autocorrelation([ar1(400)], TREND_LAGS)
+    assert acf[1] == pytest.approx(rho, abs=0.03)
+    values = [trend_test(z, f, acf) for z in ar1(count)]
+    assert {dof for _, dof, _ in values} == {TREND_DEGREE + 1}
+    rejected = np.mean([stats.chi2.sf(t2, dof) < 0.05 for t2, dof, _ in values])
+    assert rejected == pytest.approx(0.05, abs=0.012)
+    slope = np.linspace(-2.4, 2.4, n)
+    t2, dof, trend = trend_test(slope, f, acf)
+    assert stats.chi2.sf(t2, dof) < 1e-4
+    np.testing.assert_allclose(trend, slope, atol=1e-12)
 
 
 def test_family_p_value_is_sidaks_with_students_t():

@@ -26,9 +26,11 @@ can therefore neither find nor test it. Here, on the recordings that carry the E
    p < :data:`dtid.identification.diagnosis.refit.ACCEPT_P` **and** the held-out runs' |G_ENG|
    RMS z falls (their level taken from the identifying runs).
 4. **The drivetrain again.** With an accepted mechanism held in the model, the drivetrain's ten
-   free parameters are re-polished on |G_DRV| from the identified values
-   (:func:`dtid.identification.search.identify.refine`): the drivetrain before and after, and
-   the model the |G_DRV| refits then start from.
+   free parameters are refitted on |G_DRV| as a |G_DRV| refit would (:meth:`dtid.
+   identification.diagnosis.refit.Refit.refit`: from the identified values and the prior's
+   starts, a short evolution, then the search's last stages): the missing physics may have
+   bent the identification far from the truth. The drivetrain before and after, and the model
+   the |G_DRV| refits then start from.
 
 At most one engine-path mechanism is accepted (the library has one).
 """
@@ -51,7 +53,6 @@ from dtid.identification.diagnosis.refit import (
     with_mechanism,
 )
 from dtid.identification.pipeline import RunSelection
-from dtid.identification.search.identify import refine
 from dtid.identification.uncertainty.profile import (
     independent_bins,
     interval_and_verdict,
@@ -191,9 +192,7 @@ def engine_candidate(
         gain = float(1.0 - rms[0] / rms[1])
     accepted = bool(p_value < ACCEPT_P and (np.isnan(gain) or gain > 0))
     if accepted:  # step 4
-        extra = Extra(refit.base, row, ())
-        unit, _ = refine(refit.objective(extra), extra.unit_of(row), refit.settings)
-        row = extra.parameters(unit[None])[0]
+        row, _ = refit.refit(Extra(refit.base, row, ()))
     scores = refit.run_nrmse(row)
     return Candidate(
         (mechanism.name,),

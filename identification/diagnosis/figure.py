@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dtid.identification.diagnosis.diagnose import Diagnosis
+from dtid.identification.diagnosis.mismatch import smooth_trend
 from dtid.identification.plots import new_figure, save_figure
 
 if TYPE_CHECKING:
@@ -21,7 +22,8 @@ def mismatch_figure(diagnosis: Diagnosis, title: str = "") -> Figure:
     augmented model's (dotted) |G_DRV| of every run (validation dashed). Below: the mismatch map
     of the identified model, each run's standardised residual z = (measured - model) / scatter
     over frequency at its amplitude (|G_ENG|'s dotted, in its run's colour), with |G_DRV|'s
-    family-wise threshold and the significant bands shaded; and, with an accepted mechanism, the
+    family-wise threshold and the significant bands shaded (a significant smooth trend over a
+    run's whole band drawn as a broad line in its colour); and, with an accepted mechanism, the
     same map of the augmented model.
 
     Parameters
@@ -66,8 +68,15 @@ def mismatch_figure(diagnosis: Diagnosis, title: str = "") -> Figure:
                 linewidth=width,
                 linestyle=style,
             )
+        by_run = {(residual.label, residual.frf): residual for residual in found.residuals}
         for band in found.bands:
-            axis.axvspan(band.f_lo_hz, band.f_hi_hz, color="tab:red", alpha=0.15)
+            if band.kind == "trend":  # a whole run's smooth trend: drawn, not shaded
+                residual = by_run[(band.label, band.frf)]
+                trend = smooth_trend(residual.z, residual.frequency_hz)
+                colour = colours[residual.label]
+                axis.plot(residual.frequency_hz, trend, color=colour, linewidth=5, alpha=0.3)
+            else:
+                axis.axvspan(band.f_lo_hz, band.f_hi_hz, color="tab:red", alpha=0.15)
         for level in (found.threshold_z, -found.threshold_z):
             axis.axhline(level, color="tab:red", linewidth=1, linestyle=":")
         axis.set_ylabel(f"z, {name}")
