@@ -349,7 +349,10 @@ def diagnose(
     drivetrain = [m for m in allowed if BY_NAME[m] not in on_engine]
     screened, candidates, engine = diagnose_engine(refit, found, on_engine)
     accepted: list[Candidate] = [engine] if engine else []
-    refit = dataclasses.replace(refit, held=engine.mechanisms if engine else ())
+    if engine:  # the refits hold its mechanism and the K its |G_ENG| asked for
+        refit = dataclasses.replace(
+            refit, held=engine.mechanisms, engine_gain=engine.drivetrain().K
+        )
     # the drivetrain's mechanisms answer the map of the model with the engine's accepted
     start = found if engine is None else mismatch_map(engine.row, selections, draws)
     if drivetrain:

@@ -287,6 +287,10 @@ class Refit:
     held
         Mechanisms in the model whose parameters no |G_DRV| refit moves: an engine-path
         mechanism fitted on |G_ENG| (:mod:`dtid.identification.diagnosis.engine_path`).
+    engine_gain
+        K of every model refitted (None: the identified model's). An engine-path mechanism
+        changes what K must be: eq. (24) reads K as |G_ENG|'s mean, which a torque lag lowers
+        (to about half on a 60 ms lag), so its fit on |G_ENG| sets K too.
     """
 
     parameters: DrivetrainParameters
@@ -295,11 +299,13 @@ class Refit:
     settings: SearchSettings = REFIT_SETTINGS
     prior: DrivetrainParameters = dataclasses.field(default_factory=reference_parameters)
     held: tuple[str, ...] = ()
+    engine_gain: float | None = None
 
     def __post_init__(self) -> None:
         p = self.parameters
         box = passenger_car_bounds(p)
-        self.base = Parameterization.around(p, p.T_loss, p.K, bounds=box).modal_coordinates()
+        gain = p.K if self.engine_gain is None else self.engine_gain
+        self.base = Parameterization.around(p, p.T_loss, gain, bounds=box).modal_coordinates()
         self.start_unit = self.base.unit(
             np.array([[theta_from_parameters(p)[n] for n in THETA_NAMES]])
         )[0]
