@@ -153,6 +153,6 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
     test = diagnosis.mismatch
     print(
         f"test: {test.effective_bins:.0f} effective bins (neighbour correlation "
-        f"{test.correlation:.2f}), |z| threshold {test.threshold_z:.2f}, global p = "
+        f"{test.drv.correlation:.2f}), |z| threshold {test.drv.threshold_z:.2f}, global p = "
         f"{test.global_p_value:.2g}; {diagnosis.seconds:.1f} s"
     )

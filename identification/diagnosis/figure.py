@@ -77,7 +77,7 @@ def mismatch_figure(diagnosis: Diagnosis, title: str = "") -> Figure:
                 axis.plot(residual.frequency_hz, trend, color=colour, linewidth=5, alpha=0.3)
             else:
                 axis.axvspan(band.f_lo_hz, band.f_hi_hz, color="tab:red", alpha=0.15)
-        for level in (found.threshold_z, -found.threshold_z):
+        for level in (found.drv.threshold_z, -found.drv.threshold_z):
             axis.axhline(level, color="tab:red", linewidth=1, linestyle=":")
         axis.set_ylabel(f"z, {name}")
     top.set_ylabel("|G_DRV| / dB re 1 (rad/s)/(N*m)")

@@ -194,34 +194,25 @@ class MismatchMap:
         Every analysed run's residual.
     bands
         The significant bands, most significant first.
-    scatter_scale
-        Factor by which the recordings' roughness scaled the model's scatter up
-        (:func:`scatter_scale`).
+    drv
+        |G_DRV|'s noise figures (scatter scale, bin correlation, M_eff, degrees of freedom,
+        threshold).
     effective_bins
-        M_eff over all runs.
-    correlation
-        Lag-one correlation of neighbouring bins' deviations.
-    degrees_of_freedom
-        Of the bins' t statistics.
-    threshold_z
-        |z| a bin must pass (Sidak at ``family_error`` over M_eff).
+        M_eff over all runs and both FRFs.
     global_p_value
-        Family-wise p-value of the largest |z| over every bin: below ``family_error`` iff any band.
+        Family-wise p-value of the most significant bin or trend: below ``family_error`` iff
+        any band.
     family_error
         The family-wise error rate.
     engine
-        The same noise figures for |G_ENG| (None: no run has one). ``scatter_scale``,
-        ``correlation``, ``degrees_of_freedom`` and ``threshold_z`` above are |G_DRV|'s;
-        ``effective_bins`` counts both.
+        |G_ENG|'s noise figures, with the level moved onto the model's curves (None: no run has
+        |G_ENG|).
     """
 
     residuals: tuple[RunResidual, ...]
     bands: tuple[MismatchBand, ...]
-    scatter_scale: float
+    drv: NoiseFigures
     effective_bins: float
-    correlation: float
-    degrees_of_freedom: float
-    threshold_z: float
     global_p_value: float
     family_error: float = FAMILY_ERROR
     engine: NoiseFigures | None = None
@@ -235,17 +226,17 @@ class MismatchMap:
         """|z| a bin of ``frf`` (``drv`` or ``eng``) must pass."""
         if frf == "eng" and self.engine is not None:
             return self.engine.threshold_z
-        return self.threshold_z
+        return self.drv.threshold_z
 
     def as_dict(self) -> dict[str, object]:
         """The map's figures for the diagnosis JSON (``test``)."""
         return {
             "family_error": self.family_error,
-            "scatter_scale": self.scatter_scale,
+            "scatter_scale": self.drv.scatter_scale,
             "effective_bins": self.effective_bins,
-            "bin_correlation": self.correlation,
-            "degrees_of_freedom": self.degrees_of_freedom,
-            "threshold_z": self.threshold_z,
+            "bin_correlation": self.drv.correlation,
+            "degrees_of_freedom": self.drv.degrees_of_freedom,
+            "threshold_z": self.drv.threshold_z,
             "global_p_value": self.global_p_value,
             "eng": None if self.engine is None else self.engine.as_dict(),
         }
@@ -375,15 +366,11 @@ def mismatch_map(
             if trend.p_value < family_error:
                 bands.append(trend)
     bands.sort(key=lambda band: (band.p_value, -abs(band.excess_db)))
-    drv = figures["drv"]
     return MismatchMap(
         tuple(residuals),
         tuple(bands),
-        drv.scatter_scale,
+        figures["drv"],
         effective,
-        drv.correlation,
-        drv.degrees_of_freedom,
-        drv.threshold_z,
         global_p,
         family_error,
         figures.get("eng"),
