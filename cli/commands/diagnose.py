@@ -116,13 +116,15 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
             f"mismatch |G_{band.frf.upper()}| {band.label} ({band.role}): {band.f_lo_hz:.2f}-"
             f"{band.f_hi_hz:.2f} Hz, {band.excess_db:+.2f} dB at {band.peak_hz:.2f} Hz, "
             f"p = {band.p_value:.2g}, coherence {band.coherence:.2f}"
+            f"{' (smooth trend over the run)' if band.kind == 'trend' else ''}"
         )
     for candidate in diagnosis.candidates:
         values = ", ".join(f"{k} = {v:.4g}" for k, v in candidate.parameters().items())
+        held = "|G_ENG| RMS z" if candidate.frf == "eng" else "NRMSE"
         print(
             f"candidate {'+'.join(candidate.mechanisms)} ({values}): statistic "
             f"{candidate.statistic:.1f}, p = {candidate.p_value:.2g}, criterion "
-            f"{candidate.criterion:.1f}, held-out NRMSE {100 * -candidate.validation_gain:+.1f} %"
+            f"{candidate.criterion:.1f}, held-out {held} {100 * -candidate.validation_gain:+.1f} %"
             f"{' accepted' if candidate.accepted else ''}"
         )
     if diagnosis.indistinguishable:

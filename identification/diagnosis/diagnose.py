@@ -162,7 +162,7 @@ class Diagnosis:
             verb = "explains" if len(last.mechanisms) == 1 else "explain"
             text += (
                 f"; {' and '.join(last.mechanisms)} {verb}"
-                f" it ({values}; p = {max(c.p_value for c in self.accepted):.1g}, held-out NRMSE "
+                f" it ({values}; p = {max(c.p_value for c in self.accepted):.1g}, "
                 f"{_held_out_change(self.accepted)})"
             )
             left = len(self.unexplained)
@@ -303,12 +303,19 @@ def _unit(name: str) -> str:
 
 
 def _held_out_change(accepted: Sequence[Candidate]) -> str:
-    """The held-out NRMSE's change over the accepted steps, as text."""
-    gains = [c.validation_gain for c in accepted]
-    if any(np.isnan(g) for g in gains):
-        return "not measured (no held-out run)"
-    remaining = float(np.prod([1.0 - g for g in gains]))
-    return f"{-100 * (1.0 - remaining):+.0f} %"
+    """The held-out runs' change over the accepted steps, as text: their |G_DRV| NRMSE, and
+    their |G_ENG| RMS z for an engine-path mechanism."""
+    parts = []
+    for frf, measure in (("eng", "|G_ENG| RMS z"), ("drv", "NRMSE")):
+        gains = [c.validation_gain for c in accepted if c.frf == frf]
+        if not gains:
+            continue
+        if any(np.isnan(g) for g in gains):
+            parts.append(f"held-out {measure} not measured (no held-out run)")
+            continue
+        remaining = float(np.prod([1.0 - g for g in gains]))
+        parts.append(f"held-out {measure} {-100 * (1.0 - remaining):+.0f} %")
+    return ", ".join(parts)
 
 
 def diagnose(
