@@ -44,7 +44,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dtid.identification.diagnosis.mismatch import MismatchMap, RunResidual
+from dtid.identification.diagnosis.mismatch import MismatchMap, RunResidual, shape_level
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
     TEST_REALIZATIONS,
@@ -75,8 +75,9 @@ INTERVAL_GRID = 41
 
 def engine_mechanisms(found: MismatchMap, allowed: Sequence[str]) -> list[Mechanism]:
     """The allowed mechanisms this module decides: those of the engine path, when the map has
-    |G_ENG| (a recording without the ECU's torque request leaves them to the |G_DRV| refits)."""
-    if found.engine is None:
+    the identifying runs' |G_ENG| (recordings without the ECU's torque request leave them to
+    the |G_DRV| refits)."""
+    if not any(r.role == "fit" and r.frf == "eng" for r in found.residuals):
         return []
     return [BY_NAME[name] for name in allowed if BY_NAME[name].path == "engine"]
 
@@ -97,13 +98,20 @@ class EngineRuns:
     def __init__(self, refit: Refit, found: MismatchMap, role: str) -> None:
         self.refit = refit
         self.selection: RunSelection | None = refit.fit if role == "fit" else refit.validation
-        by_label = {r.label: r for r in found.residuals if r.role == role and r.frf == "eng"}
+        mapped: dict[str, list[RunResidual]] = {}
+        for r in found.residuals:  # in the selection's order; repeats share a label
+            if r.role == role and r.frf == "eng":
+                mapped.setdefault(r.label, []).append(r)
         self.residuals: list[RunResidual] = []
+        self.present: list[bool] = []  # per run of the selection: does it have |G_ENG|
         if self.selection is not None:
             for test, runs in zip(self.selection.tests, self.selection.runs, strict=True):
                 for i in runs:
                     label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
-                    self.residuals.append(by_label[label])
+                    found_runs = mapped.get(label, [])
+                    self.present.append(bool(found_runs))
+                    if found_runs:
+                        self.residuals.append(found_runs.pop(0))
 
     def __bool__(self) -> bool:
         return bool(self.residuals)
@@ -111,19 +119,17 @@ class EngineRuns:
     def model(
         self, rows: np.ndarray, realizations: int | None = None, seed: int | None = None
     ) -> list[np.ndarray]:
-        """The model's |G_ENG| (n, bins) per run, dB."""
-        return self.refit.curves(rows, self.selection, realizations, seed, frf="eng")
+        """The model's |G_ENG| (n, bins) per run that has one, dB."""
+        curves = self.refit.curves(rows, self.selection, realizations, seed, frf="eng")
+        return [c for c, present in zip(curves, self.present, strict=True) if present]
 
     def level(self, model: Sequence[np.ndarray]) -> np.ndarray:
-        """Per row of ``model``, the one level (dB) that moves its curves closest to the
-        measured, each bin weighted by its inverse scatter variance (as the map's)."""
-        residual = np.hstack(
-            [r.measured_db - m for r, m in zip(self.residuals, model, strict=True)]
+        """Per row of ``model``, the level (dB) that moves its curves closest to the measured
+        (:func:`dtid.identification.diagnosis.mismatch.shape_level`, as the map's)."""
+        return shape_level(
+            [r.measured_db - m for r, m in zip(self.residuals, model, strict=True)],
+            [r.scatter_db for r in self.residuals],
         )
-        weight = np.concatenate([r.scatter_db for r in self.residuals]) ** -2.0
-        weight = np.where(np.isfinite(residual), weight, 0.0)
-        total = np.sum(weight, axis=1)
-        return np.sum(np.nan_to_num(residual) * weight, axis=1) / np.where(total > 0, total, 1.0)
 
     def z(self, model: Sequence[np.ndarray], level: np.ndarray) -> np.ndarray:
         """(n, bins) standardised residual of each row, its curves moved by ``level``."""

@@ -323,10 +323,17 @@ def mismatch_map(
         frf: bin_autocorrelation([run.deviations / run.scatter_db for run in chosen], TREND_LAGS)
         for frf, chosen in by_frf.items()
     }
+    levels = {  # |G_ENG| is compared in shape (module notes)
+        frf: float(
+            shape_level([run.residual_db for run in chosen], [run.scatter_db for run in chosen])[0]
+        )
+        for frf, chosen in by_frf.items()
+        if frf == "eng"
+    }
     figures = {
         frf: f._replace(
             threshold_z=float(stats.t.isf(bin_error / 2, f.degrees_of_freedom)),
-            level_db=_level(by_frf[frf]) if frf == "eng" else 0.0,
+            level_db=levels.get(frf, 0.0),
         )
         for frf, f in spread.items()
     }
@@ -377,15 +384,28 @@ def mismatch_map(
     )
 
 
-def _level(runs: Sequence[ModelScatter]) -> float:
-    """The one level, dB, that moves the model's curves of these runs closest to the measured,
-    each bin weighted by its inverse scatter variance."""
-    residual = np.concatenate([run.residual_db for run in runs])
-    weight = np.concatenate([run.scatter_db for run in runs]) ** -2.0
-    usable = np.isfinite(residual) & np.isfinite(weight)
-    if not usable.any():
-        return 0.0
-    return float(np.sum(residual[usable] * weight[usable]) / np.sum(weight[usable]))
+def shape_level(residuals: Sequence[np.ndarray], scatters: Sequence[np.ndarray]) -> np.ndarray:
+    """The one level, dB, that moves a model's curves closest to the measured over all runs,
+    each bin weighted by its inverse scatter variance: how |G_ENG| is compared in shape.
+
+    Parameters
+    ----------
+    residuals
+        Per run, measured minus model, dB: (bins,) for one model or (n, bins) for n.
+    scatters
+        Per run, the bins' scatter, dB (bins,).
+
+    Returns
+    -------
+    numpy.ndarray
+        (n,) levels (0 for a model without a finite bin).
+    """
+    residual = np.hstack([np.atleast_2d(r) for r in residuals])
+    weight = np.concatenate(scatters) ** -2.0
+    weight = np.where(np.isfinite(residual) & np.isfinite(weight), weight, 0.0)
+    total = np.sum(weight, axis=1)
+    weighted = np.sum(np.where(weight > 0, residual, 0.0) * weight, axis=1)
+    return weighted / np.where(total > 0, total, 1.0)
 
 
 def _spread(runs: Sequence[ModelScatter], draws: int) -> NoiseFigures:
