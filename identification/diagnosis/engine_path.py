@@ -44,7 +44,12 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dtid.identification.diagnosis.mismatch import MismatchMap, RunResidual, shape_level
+from dtid.identification.diagnosis.mismatch import (
+    MismatchMap,
+    RunResidual,
+    shape_level,
+    sidak,
+)
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
     TEST_REALIZATIONS,
@@ -196,7 +201,7 @@ def engine_candidate(
     else:
         lam = statistic(measured, after_db, before_db)
         single = nested_p_value(lam, k, independent_bins(measured, after_db), k + 1)
-    p_value = 1.0 if single >= 1.0 else float(-np.expm1(tried * np.log1p(-single)))
+    p_value = 1.0 if single >= 1.0 else sidak(single, tried)
     gain = float("nan")
     if held:
         fit_level = fit.level(fit.model(rows))
@@ -208,17 +213,8 @@ def engine_candidate(
         at_gain = dataclasses.replace(refit, engine_gain=float(row[GAIN]))
         row, _ = at_gain.refit(Extra(at_gain.base, row, ()))
     scores = refit.run_nrmse(row)
-    return Candidate(
-        (mechanism.name,),
-        row,
-        float(sum(scores["fit"].values())),
-        scores,
-        float(lam),
-        p_value,
-        float(2 * k - lam),
-        gain,
-        accepted,
-        frf="eng",
+    return Candidate.tested(
+        (mechanism.name,), row, scores, lam, p_value, k, gain, accepted, frf="eng"
     )
 
 

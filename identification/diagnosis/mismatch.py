@@ -713,7 +713,7 @@ def trend_band(
     if dof == 0:
         return None
     single = float(stats.chi2.sf(statistic, dof))
-    family = float(-np.expm1(tests * np.log1p(-min(single, 1.0 - 1e-16))))
+    family = sidak(single, tests)
     peak = int(np.nanargmax(np.abs(trend)))
     used = np.isfinite(trend)
     return MismatchBand(
@@ -734,7 +734,13 @@ def trend_band(
 def family_p_value(z: float, effective: float, dof: float) -> float:
     """Family-wise p-value of a |z| among ``effective`` independent t-distributed bins."""
     single = 2.0 * float(stats.t.sf(abs(z), dof))
-    return float(-np.expm1(effective * np.log1p(-min(single, 1.0 - 1e-16))))
+    return sidak(single, effective)
+
+
+def sidak(single: float, tests: float) -> float:
+    """Family-wise p-value of the smallest of ``tests`` independent p-values (Sidak),
+    ``1 - (1 - single)^tests``."""
+    return float(-np.expm1(tests * np.log1p(-min(single, 1.0 - 1e-16))))
 
 
 def find_bands(

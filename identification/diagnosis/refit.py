@@ -55,7 +55,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, stats
 
-from dtid.identification.diagnosis.mismatch import MismatchMap
+from dtid.identification.diagnosis.mismatch import MismatchMap, sidak
 from dtid.identification.model.response import model_curves, model_drv_db
 from dtid.identification.pipeline import RunSelection
 from dtid.identification.search.identify import Objective, SearchSettings, refine
@@ -238,6 +238,35 @@ class Candidate:
     validation_gain: float
     accepted: bool
     frf: str = "drv"
+
+    @classmethod
+    def tested(
+        cls,
+        mechanisms: tuple[str, ...],
+        row: np.ndarray,
+        scores: dict[str, dict[str, float]],
+        statistic: float,
+        p_value: float,
+        k: int,
+        validation_gain: float,
+        accepted: bool,
+        frf: str = "drv",
+    ) -> Candidate:
+        """A candidate from its test's figures (``scores``: :meth:`Refit.run_nrmse` of ``row``;
+        ``k`` parameters added): its objective the identifying runs' summed NRMSE, its
+        criterion 2 k - statistic."""
+        return cls(
+            mechanisms,
+            row,
+            float(sum(scores["fit"].values())),
+            scores,
+            float(statistic),
+            p_value,
+            float(2 * k - statistic),
+            float(validation_gain),
+            bool(accepted),
+            frf,
+        )
 
     def parameters(self) -> dict[str, float]:
         """The added mechanisms' parameter values, SI units."""
@@ -593,7 +622,7 @@ class Refit:
             lam = statistic(measured, after_db, before_db)
             fitted = len(Extra(self.base, row, self.searched(mechanisms)).free)
             single = nested_p_value(lam, k, independent_bins(measured, after_db), fitted)
-        p_value = 1.0 if single >= 1.0 else float(-np.expm1(tried * np.log1p(-single)))
+        p_value = 1.0 if single >= 1.0 else sidak(single, tried)
         scores = self.run_nrmse(row)
         held = sum(scores.get("validation", {}).values())
         held_before = sum(self.run_nrmse(before).get("validation", {}).values())
@@ -604,17 +633,8 @@ class Refit:
         )
         gain = 1.0 - held / held_before if held_before > 0 else float("nan")
         better = np.isnan(gain) or (gain > 0 and held < held_identified)
-        return Candidate(
-            mechanisms,
-            row,
-            float(sum(scores["fit"].values())),
-            scores,
-            float(lam),
-            p_value,
-            float(2 * k - lam),
-            float(gain),
-            bool(p_value < ACCEPT_P and better),
-        )
+        accepted = p_value < ACCEPT_P and better
+        return Candidate.tested(mechanisms, row, scores, lam, p_value, k, gain, accepted)
 
 
 @dataclass(frozen=True)
