@@ -5,9 +5,10 @@ IdentificationReport`); :func:`diagnose_document` takes the JSON ``dtid identify
 recordings it came from. Both give a :class:`Diagnosis`: the mismatch map
 (:mod:`dtid.identification.diagnosis.mismatch`), the effective coupling values per run
 (:mod:`dtid.identification.diagnosis.hints`) when something is significant, the mechanisms of
-the library screened, refitted and tested (:mod:`dtid.identification.diagnosis.refit`), and
-the verdict. A mismatch no mechanism explains is reported as unexplained, with its bands and
-hints (docs/diagnosis.md).
+the library screened, refitted and tested (those of the engine path on |G_ENG|,
+:mod:`dtid.identification.diagnosis.engine_path`, first; the others on |G_DRV|,
+:mod:`dtid.identification.diagnosis.refit`), and the verdict. A mismatch no mechanism explains
+is reported as unexplained, with its bands and hints (docs/diagnosis.md).
 """
 
 from __future__ import annotations
@@ -360,7 +361,7 @@ def diagnose(
         refit = dataclasses.replace(
             refit, held=engine.mechanisms, engine_gain=engine.drivetrain().K
         )
-    # the drivetrain's mechanisms answer the map of the model with the engine's accepted
+    # the drivetrain's mechanisms answer what the model with an accepted engine mechanism misses
     start = found if engine is None else mismatch_map(engine.row, selections, draws)
     if drivetrain:
         at = None if engine is None else engine.row

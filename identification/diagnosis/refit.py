@@ -1,6 +1,8 @@
 """Name the physics the model left out: screen the mechanism library, refit, test.
 
-Three steps, each on the identifying runs only (the held-out runs judge the result):
+Three steps, each on the identifying runs only (the held-out runs judge the result), for the
+mechanisms that show in |G_DRV| (one on the engine path is decided on |G_ENG| where the
+recordings carry the ECU's request: :mod:`dtid.identification.diagnosis.engine_path`):
 
 1. **Screen** (one batched simulation). At the identified model, the Jacobian of the model's
    |G_DRV| with respect to the ten free parameters, and each mechanism's effect at the two ends
