@@ -477,7 +477,7 @@ def _diagnosis_section(
     if bands:
         parts.append(
             table_html(
-                ["FRF", "amplitude / N*m", "band / Hz", "excess / dB", "p"],
+                ["FRF", "amplitude / N*m", "band / Hz", "excess / dB", "p", "kind"],
                 [
                     (
                         escape(b.get("frf", "")),
@@ -485,6 +485,7 @@ def _diagnosis_section(
                         f"{b.get('f_lo_hz', 0):.2f} - {b.get('f_hi_hz', 0):.2f}",
                         f"{b.get('excess_db', 0):+.2f}",
                         f"{b.get('p_value', 0):.2g}",
+                        "smooth trend" if b.get("kind") == "trend" else "bins",
                     )
                     for b in bands
                 ],
