@@ -604,14 +604,7 @@ def neighbour_correlation(deviations: Sequence[np.ndarray]) -> float:
         Per run, (draws, bins) deviations of the model's recordings from their mean, each
         divided by its bin's scatter.
     """
-    products, squares = 0.0, 0.0
-    for raw in deviations:
-        block = np.where(np.isfinite(raw), raw, 0.0)
-        products += float(np.sum(block[:, 1:] * block[:, :-1]))
-        squares += float(np.sum(block**2))
-    if squares == 0.0:
-        return 0.0
-    return float(np.clip(products / squares, 0.0, 0.95))
+    return float(np.clip(bin_autocorrelation(deviations, 1)[1], 0.0, 0.95))
 
 
 def bin_autocorrelation(deviations: Sequence[np.ndarray], lags: int) -> np.ndarray:
