@@ -178,6 +178,12 @@ class Loop(NamedTuple):
         window's angle over its time) instead of the step speeds (eq. 9), if given.
     integration
         :data:`EULER` or :data:`VERLET` (see the module notes).
+    cylinder_offset
+        Where the run's first stroke falls in the firing order: stroke ``k`` of the run is fired
+        by the cylinder of ``cylinder_imbalance`` when ``(k + cylinder_offset) % N_CYL == 0``
+        (0 for a test simulated from its start; a model repeating a recording from a stroke in
+        mid-cycle takes it from the recording, :meth:`dtid.identification.model.idle_loop.
+        IdleLoop.cylinder_offset`).
     """
 
     combustion_shape: np.ndarray
@@ -190,6 +196,7 @@ class Loop(NamedTuple):
     request_nm: np.ndarray
     sigmas: np.ndarray
     integration: int = EULER
+    cylinder_offset: int = 0
 
 
 class Job(NamedTuple):
@@ -363,6 +370,7 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
     dmf = (c12, d12, half12, shift12, c12_2, knee12, d12_2)
     coupling = (*dmf, c23, d23, half23, c23_2, knee23, d3, belt_c, belt_d)
     verlet = loop.integration == VERLET
+    odd = loop.cylinder_offset
     tau_m, sensor_gain, share = params[P_TAU_M], params[P_G_T], params[P_SHARE]
     kp, ki, kd, d_tau = controller[C_KP], controller[C_KI], controller[C_KD], controller[C_D_TAU]
     u_min, u_max, closed = controller[C_U_MIN], controller[C_U_MAX], controller[C_CLOSED] > 0.5
@@ -460,7 +468,8 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
                 lagged += (target - lagged) * (1.0 - math.exp(-stroke_s / tau_m))
                 target = lagged
             if share != 0.0:  # cylinder_imbalance: the first cylinder's excess
-                target *= 1.0 + share if stroke % N_CYL == 0 else 1.0 - share / (N_CYL - 1)
+                odd_one = (stroke + odd) % N_CYL == 0
+                target *= 1.0 + share if odd_one else 1.0 - share / (N_CYL - 1)
             held[stroke % N_CYL] = target * (1.0 + sigma_cv * cv_noise[n_started])
             n_started += 1
 

@@ -15,6 +15,7 @@ import numpy as np
 from dtid.acquisition.plan import TestPlan, tool_requests
 from dtid.errors import AnalysisError, ConfigError
 from dtid.simulator.angle_grid import (
+    N_CYL,
     RPM_PER_RAD_S,
     STEP_RAD,
     STEPS_PER_SPEED_SAMPLE,
@@ -147,6 +148,7 @@ class SimulationOptions:
         request_nm: np.ndarray,
         reference: np.ndarray | None = None,
         drive: np.ndarray | None = None,
+        cylinder_offset: int = 0,
     ) -> Loop:
         """The kernels' shared arguments (:class:`dtid.simulator.kernel.Loop`) for these options:
         the one place they are built.
@@ -160,6 +162,9 @@ class SimulationOptions:
             vehicle's own ECU).
         drive
             Torque added to each stroke's request, N*m; none by default.
+        cylinder_offset
+            Where the first stroke falls in the firing order (:class:`dtid.simulator.kernel.
+            Loop`); 0: the cylinder of ``cylinder_imbalance`` fires it.
 
         Raises
         ------
@@ -187,6 +192,7 @@ class SimulationOptions:
             request_nm,
             self.sigmas(),
             INTEGRATION[self.integration],
+            cylinder_offset % N_CYL,
         )
 
 
@@ -439,6 +445,7 @@ def replay_batch(
     signs: np.ndarray | None = None,
     reference: np.ndarray | None = None,
     drive: np.ndarray | None = None,
+    cylinder_offset: int = 0,
 ) -> BatchResult:
     """Simulate many parameter sets driven by one table of test-torque requests, in parallel.
 
@@ -473,6 +480,8 @@ def replay_batch(
     drive
         Torque added to each stroke's request, N*m, per stroke from the start; none by default
         (see :mod:`dtid.simulator.kernel`).
+    cylinder_offset
+        Where the first stroke falls in the firing order (:class:`dtid.simulator.kernel.Loop`).
 
     Returns
     -------
@@ -489,7 +498,7 @@ def replay_batch(
     scales = np.ascontiguousarray(scales, dtype=np.float64)
     if scales.shape != (n_jobs,):
         raise ConfigError(f"scales must have shape ({n_jobs},), got {scales.shape}")
-    loop = options.loop(request_t, request_nm, reference, drive)
+    loop = options.loop(request_t, request_nm, reference, drive, cylinder_offset)
     streams = np.arange(n_jobs) if streams is None else np.asarray(streams, dtype=np.int64)
     if streams.shape != (n_jobs,):
         raise ConfigError(f"streams must have shape ({n_jobs},), got {streams.shape}")

@@ -54,9 +54,10 @@ import numpy as np
 
 from dtid.errors import AnalysisError
 from dtid.identification.model.combustion import variation_and_noise
+from dtid.identification.model.cylinder_spread import odd_place, stroke_factors
 from dtid.identification.samples.testdata import Series, TestData
 from dtid.jsonfile import json_number
-from dtid.simulator.angle_grid import RPM_PER_RAD_S
+from dtid.simulator.angle_grid import N_CYL, RPM_PER_RAD_S
 from dtid.simulator.controller import IdleController
 
 RECORDED_REQUEST = "recorded_request"
@@ -122,6 +123,15 @@ class IdleLoop:
         Each reported stroke's time (s), the request it took and its measured mean torque
         (N*m), for K read stroke by stroke (:meth:`engine_gain`); empty for a drive by measured
         torque.
+    stroke_number
+        Each reported stroke's number counted from :attr:`first_stroke` (two crank events per
+        stroke; a lost report leaves a gap): ``stroke_number % N_CYL`` is its place in the
+        firing order (:mod:`dtid.identification.model.cylinder_spread`).
+    odd_stroke
+        The place in the firing order (0..N_CYL-1 of :attr:`stroke_number`) whose torque departs
+        most from the others': where the model puts a ``cylinder_imbalance``
+        (:meth:`cylinder_offset`); 0 for a drive by measured torque, which holds the
+        cylinders' spread already.
     """
 
     mode: str
@@ -138,6 +148,8 @@ class IdleLoop:
     stroke_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     stroke_request_nm: np.ndarray = field(default_factory=lambda: np.zeros(0))
     stroke_torque_nm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    stroke_number: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    odd_stroke: int = 0
 
     def engine_gain(self, windows: Sequence[tuple[float, float]] = ()) -> tuple[float, float]:
         """K of eq. (3) from the strokes reported inside ``windows`` (s; all when empty):
@@ -202,6 +214,13 @@ class IdleLoop:
         replay from ``start``."""
         return event - start - 1
 
+    def cylinder_offset(self, start: int) -> int:
+        """Where a replay from ``start`` (an event at which a stroke starts) has its first stroke
+        in the firing order, for the kernel's ``cylinder_imbalance`` to act on the recording's
+        :attr:`odd_stroke` (:class:`dtid.simulator.kernel.Loop`)."""
+        first = (start - self.first_stroke) // SAMPLES_PER_STROKE
+        return int((first - self.odd_stroke) % N_CYL)
+
     def drive(self, start: int) -> np.ndarray:
         """The request of each stroke from a start event on, N*m."""
         return self.drive_nm[start::SAMPLES_PER_STROKE]
@@ -252,6 +271,8 @@ def idle_loop(data: TestData) -> IdleLoop:
         ok = (at >= 0) & (at < len(request))
         variation, noise = variation_and_noise(gain * request[at[ok]], data.mean_torque.value[ok])
         first = int(strokes[0]) - lag
+        number = np.rint((at[ok] - first) / SAMPLES_PER_STROKE).astype(np.int64)
+        factors = stroke_factors(number, data.mean_torque.value[ok], request[at[ok]])[0]
         return IdleLoop(
             RECORDED_REQUEST,
             t,
@@ -267,6 +288,8 @@ def idle_loop(data: TestData) -> IdleLoop:
             data.mean_torque.t[ok],
             request[at[ok]],
             data.mean_torque.value[ok],
+            number,
+            odd_place(factors),
         )
     # a stroke's mean torque is known, and reported, when the stroke ends: the stroke started
     # SAMPLES_PER_STROKE events before its report

@@ -294,11 +294,12 @@ def model_curves(params: np.ndarray, test: ModelTest, engine: bool = True) -> li
     engine = engine and test.input == "torque" and (test.loop is None or test.loop.by_request)
     for replay in test.replays:
         if replay.start_event is None:
-            requests, reference, drive = replay.requests, None, None
+            requests, reference, drive, offset = replay.requests, None, None, 0
         else:  # the drive holds the test torque already
             requests = Series(np.zeros(0), np.zeros(0))
             reference = test.loop.reference(replay.start_event)
             drive = test.loop.drive(replay.start_event)
+            offset = test.loop.cylinder_offset(replay.start_event)
         batch = replay_batch(
             np.repeat(params, m, axis=0),
             requests.t,
@@ -311,6 +312,7 @@ def model_curves(params: np.ndarray, test: ModelTest, engine: bool = True) -> li
             signs=np.tile(test.signs(), n_sets),
             reference=reference,
             drive=drive,
+            cylinder_offset=offset,
         )
         for i in replay.runs:
             out[i] = _run_curves(batch, replay, test.estimates[i], test, n_sets, engine)
