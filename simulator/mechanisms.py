@@ -71,9 +71,11 @@ class Mechanism:
         Its parameters; the first is its *main* parameter (the magnitude of the effect).
     path
         Where it acts: ``"drivetrain"`` (between the measured mean torque and the measured
-        speed: it shows in |G_DRV|) or ``"engine"`` (between the ECU's torque request and the
+        speed: it shows in |G_DRV|), ``"engine"`` (between the ECU's torque request and the
         delivered mean torque: it shows in |G_ENG|, eq. 15, which the drivetrain parameters do
-        not shape, while |G_DRV|, speed per *measured* torque, hardly sees it).
+        not shape, while |G_DRV|, speed per *measured* torque, hardly sees it) or ``"strokes"``
+        (in each stroke's torque by its place in the firing order, which the strokes' own
+        torques show directly and the FRFs only by chance).
     """
 
     name: str
@@ -278,18 +280,20 @@ MECHANISMS: tuple[Mechanism, ...] = (
     ),
     Mechanism(
         "cylinder_imbalance",
-        "One cylinder delivers a different torque: the first cylinder of the firing order gives "
-        "1 + share times the mean, the other three 1 - share/3 (a half-order excitation).",
+        "One cylinder delivers 1 + share times the mean torque and the other three 1 - share/3 "
+        "(a half-order excitation; the simulator fires it first, the model of a recording where "
+        "the recording's strokes show it).",
         (
             _p(
                 "share",
                 "1",
-                "excess torque share of the first cylinder",
+                "excess torque share of the odd cylinder",
                 0.0,
                 (-0.5, 0.5),
                 (0.05, 0.25),
             ),
         ),
+        path="strokes",
     ),
 )
 """The library, in kernel order."""

@@ -40,6 +40,12 @@ SHIFTS_SHOWN = 4
 """Parameters named, largest change first, for each mechanism the drivetrain would absorb."""
 SHIFT_SHOWN = 0.005
 """Smallest relative change named."""
+HELD_OUT_MEASURE = {
+    "drv": "NRMSE",
+    "eng": "|G_ENG| RMS z",
+    "strokes": "strokes' departure",
+}
+"""What a candidate's held-out figure measures, by where it was tested."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -120,7 +126,7 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
         )
     for candidate in diagnosis.candidates:
         values = ", ".join(f"{k} = {v:.4g}" for k, v in candidate.parameters().items())
-        held = "|G_ENG| RMS z" if candidate.frf == "eng" else "NRMSE"
+        held = HELD_OUT_MEASURE[candidate.frf]
         print(
             f"candidate {'+'.join(candidate.mechanisms)} ({values}): statistic "
             f"{candidate.statistic:.1f}, p = {candidate.p_value:.2g}, criterion "
@@ -144,6 +150,18 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
         print(
             f"if present, {entry.mechanism} ({values}) would be absorbed {shifts} "
             f"(eq. 17 {entry.objective:.3f} of the imitation)"
+        )
+    if diagnosis.cylinders is not None:
+        cylinders = diagnosis.cylinders
+        for name, factors in cylinders.factors.items():
+            print(
+                f"cylinders {name}: torque factor by place in the firing order "
+                + ", ".join(f"{f:.3f}" for f in factors)
+                + f" (odd place {cylinders.places[name]})"
+            )
+        print(
+            f"cylinders: one-cylinder share {cylinders.share:+.4f} +- "
+            f"{cylinders.standard_error:.4f}, p = {cylinders.p_value:.2g}"
         )
     for hint in diagnosis.hints:
         edge = " (grid edge)" if hint.at_edge else ""

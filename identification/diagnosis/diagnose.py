@@ -28,6 +28,14 @@ from dtid.identification.diagnosis.engine_path import (
     engine_mechanisms,
 )
 from dtid.identification.diagnosis.hints import EffectiveValue, effective_values
+from dtid.identification.diagnosis.imbalance import (
+    MECHANISM,
+    StrokeTest,
+    imbalance_candidate,
+    imbalance_interval,
+    screen_strokes,
+    stroke_test,
+)
 from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
@@ -80,6 +88,9 @@ class Diagnosis:
     absorbed
         For each indistinguishable mechanism, what the drivetrain parameters would make of it
         at the top of its typical range (:meth:`Refit.absorbed`).
+    cylinders
+        What the strokes say of the cylinders (None: not asked, or no torque request on the
+        bus; :mod:`dtid.identification.diagnosis.imbalance`).
     """
 
     baseline: Mapping[str, Any]
@@ -93,6 +104,7 @@ class Diagnosis:
     after: MismatchMap | None = None
     intervals: Mapping[str, Mapping[str, object]] | None = None
     absorbed: tuple[Absorbed, ...] = ()
+    cylinders: StrokeTest | None = None
 
     @property
     def mechanisms(self) -> tuple[str, ...]:
@@ -125,8 +137,9 @@ class Diagnosis:
 
     @property
     def adequate(self) -> bool:
-        """True when the model explains the recordings."""
-        return self.mismatch.adequate
+        """True when the model explains the recordings: no band in the map, and the strokes
+        show no cylinder apart."""
+        return self.mismatch.adequate and not (self.cylinders and self.cylinders.significant)
 
     def sentence(self) -> str:
         """The verdict in one sentence."""
@@ -145,16 +158,26 @@ class Diagnosis:
                     "parameters, which would absorb any of them present"
                 )
             return text + "."
-        first = test.bands[0]
-        where = (
-            f"|G_{first.frf.upper()}| at {first.amplitude_nm:g} N*m, {first.f_lo_hz:.1f}-"
-            f"{first.f_hi_hz:.1f} Hz, {first.excess_db:+.1f} dB, p = {first.p_value:.1g}"
-        )
-        count = len(test.bands)
-        text = (
-            f"The identified model misses these recordings in {count} "
-            f"band{'s' if count > 1 else ''} (most significant: {where})"
-        )
+        misses = []
+        if test.bands:
+            first = test.bands[0]
+            where = (
+                f"|G_{first.frf.upper()}| at {first.amplitude_nm:g} N*m, {first.f_lo_hz:.1f}-"
+                f"{first.f_hi_hz:.1f} Hz, {first.excess_db:+.1f} dB, p = {first.p_value:.1g}"
+            )
+            count = len(test.bands)
+            misses.append(
+                f"misses these recordings in {count} band{'s' if count > 1 else ''} (most "
+                f"significant: {where})"
+            )
+        cylinders = self.cylinders
+        if cylinders is not None and cylinders.significant:
+            misses.append(
+                "takes the cylinders as equal where the strokes show one apart (one-cylinder "
+                f"share {cylinders.share:+.3f} +- {cylinders.standard_error:.3f}, "
+                f"p = {cylinders.p_value:.1g})"
+            )
+        text = "The identified model " + " and ".join(misses)
         if self.accepted:
             last = self.accepted[-1]
             values = ", ".join(
@@ -170,7 +193,7 @@ class Diagnosis:
             if left:
                 text += f"; {left} band{'s' if left > 1 else ''} remain unexplained"
             return text + "."
-        tried = ", ".join(c.mechanisms[0] for c in self.candidates)
+        tried = ", ".join(c.mechanisms[-1] for c in self.candidates)
         text += (
             f"; no mechanism of the library explains it (refitted: {tried})"
             if tried
@@ -224,6 +247,7 @@ class Diagnosis:
                 for s in self.screened
             ],
             "hints": [hint.as_dict() for hint in self.hints],
+            "cylinders": None if self.cylinders is None else self.cylinders.as_dict(),
             "library": [m.name for m in MECHANISMS],
             "seconds": self.seconds,
         }
@@ -307,7 +331,8 @@ def _held_out_change(accepted: Sequence[Candidate]) -> str:
     """The held-out runs' change over the accepted steps, as text: their |G_DRV| NRMSE, and
     their |G_ENG| RMS z for an engine-path mechanism."""
     parts = []
-    for frf, measure in (("eng", "|G_ENG| RMS z"), ("drv", "NRMSE")):
+    measures = (("strokes", "strokes' departure"), ("eng", "|G_ENG| RMS z"), ("drv", "NRMSE"))
+    for frf, measure in measures:
         gains = [c.validation_gain for c in accepted if c.frf == frf]
         if not gains:
             continue
@@ -353,37 +378,56 @@ def diagnose(
     roles = dict(selections)
     refit = Refit(parameters, roles["fit"], roles.get("validation"))
     allowed = list(BY_NAME) if mechanisms is None else list(mechanisms)
-    on_engine = engine_mechanisms(found, allowed)
-    drivetrain = [m for m in allowed if BY_NAME[m] not in on_engine]
-    screened, candidates, engine = diagnose_engine(refit, found, on_engine)
-    accepted: list[Candidate] = [engine] if engine else []
+    screened: list[Screened] = []
+    candidates: list[Candidate] = []
+    accepted: list[Candidate] = []
+    # the strokes first: the cylinders' spread, whatever the map says (imbalance.py's notes)
+    strokes = stroke_test(refit.fit, refit.validation) if MECHANISM.name in allowed else None
+    start = found
+    if strokes is not None:
+        screened.append(screen_strokes(strokes))
+        if strokes.significant:
+            candidates.append(imbalance_candidate(refit, strokes))
+        if candidates and candidates[-1].accepted:
+            accepted.append(candidates[-1])
+            refit = refit.holding(accepted[-1])
+            start = mismatch_map(accepted[-1].row, selections, draws)
+    engine_map = start
+    screened_eng, tried_eng, engine = diagnose_engine(
+        refit, engine_map, engine_mechanisms(engine_map, allowed)
+    )
+    screened += screened_eng
+    candidates += tried_eng
     if engine:  # the refits hold its mechanism and the K its |G_ENG| asked for
-        refit = dataclasses.replace(
-            refit, held=engine.mechanisms, engine_gain=engine.drivetrain().K
-        )
-    # the drivetrain's mechanisms answer what the model with an accepted engine mechanism misses
-    start = found if engine is None else mismatch_map(engine.row, selections, draws)
+        accepted.append(engine)
+        refit = dataclasses.replace(refit.holding(engine), engine_gain=engine.drivetrain().K)
+        # the drivetrain's mechanisms answer what the model with it misses
+        start = mismatch_map(engine.row, selections, draws)
+    drivetrain = [m for m in allowed if BY_NAME[m].path == "drivetrain"]
     if drivetrain:
-        at = None if engine is None else engine.row
+        at = refit.start_row() if accepted else None
         screened += [s for s in refit.screen(start, at) if s.mechanism in drivetrain]
     if any(band.frf == "drv" for band in start.bands) and drivetrain:
         screened_drv, tried, accepted_drv = diagnose_mechanisms(
-            refit, start, drivetrain, [s for s in screened if s.frf == "drv"], engine
+            refit, start, drivetrain, [s for s in screened if s.frf == "drv"]
         )
-        screened = [s for s in screened if s.frf == "eng"] + screened_drv
-        candidates = sorted([*candidates, *tried], key=lambda c: c.criterion)
+        screened = [s for s in screened if s.frf != "drv"] + screened_drv
+        candidates += tried
         accepted += accepted_drv
+    candidates.sort(key=lambda c: c.criterion)
     after = intervals = None
     if accepted:
-        after = start
-        if accepted[-1] is not engine:
+        after = start  # the map of the last model accepted, drawn already unless on |G_DRV|
+        on_drv = accepted[-1].frf == "drv"
+        if on_drv:
             after = mismatch_map(accepted[-1].row, selections, draws)
             rescreened = {x.mechanism: x for x in refit.screen(after, accepted[-1].row)}
             screened = [rescreened.get(x.mechanism, x) if x.frf == "drv" else x for x in screened]
         if profile_points > 0:
             intervals = {
-                **(engine_interval(refit, found, engine) if engine else {}),
-                **refit.intervals(accepted[-1], profile_points),
+                **(imbalance_interval(strokes) if strokes and strokes.accepted else {}),
+                **(engine_interval(refit, engine_map, engine) if engine else {}),
+                **(refit.intervals(accepted[-1], profile_points) if on_drv else {}),
             }
     hints = () if found.adequate or accepted else tuple(effective_values(parameters, selections))
     diagnosis = Diagnosis(
@@ -397,6 +441,7 @@ def diagnose(
         tuple(accepted),
         after,
         intervals,
+        cylinders=strokes,
     )
     final = accepted[-1].row if accepted else kernel_parameters(parameters.as_array())
     absorbed = tuple(refit.absorbed(BY_NAME[m], final) for m in diagnosis.indistinguishable)

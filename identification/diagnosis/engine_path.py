@@ -67,7 +67,7 @@ from dtid.identification.uncertainty.profile import (
     nested_p_value,
     statistic,
 )
-from dtid.simulator.mechanisms import BY_NAME, EXTRA_INDEX, Mechanism, kernel_parameters
+from dtid.simulator.mechanisms import BY_NAME, EXTRA_INDEX, Mechanism
 from dtid.simulator.parameters import NAMES
 
 GAIN = NAMES.index("K")
@@ -155,7 +155,7 @@ class EngineRuns:
 def screen_engine(refit: Refit, found: MismatchMap, mechanism: Mechanism) -> Screened:
     """Step 1 (module notes) at the identified model; the gain is the fit's (step 2)."""
     fit = EngineRuns(refit, found, "fit")
-    neutral = kernel_parameters(refit.parameters.as_array())
+    neutral = refit.start_row()
     top = with_mechanism(neutral, mechanism, mechanism.main.typical[1])
     model = fit.model(np.vstack([neutral, top]))
     effect = fit.z(model, fit.level(model))  # each moved by its own level
@@ -186,7 +186,7 @@ def engine_candidate(
 ) -> Candidate:
     """Steps 3 and 4 (module notes) for the mechanism at the fitted ``value``."""
     fit, held = EngineRuns(refit, found, "fit"), EngineRuns(refit, found, "validation")
-    before = kernel_parameters(refit.parameters.as_array())
+    before = refit.start_row()
     row = with_mechanism(before, mechanism, value)
     row[GAIN] *= 10.0 ** (float(fit.level(fit.model(row[None]))[0]) / 20.0)  # the K it asks for
     rows = np.vstack([row, before])
@@ -214,7 +214,7 @@ def engine_candidate(
         row, _ = at_gain.refit(Extra(at_gain.base, row, ()))
     scores = refit.run_nrmse(row)
     return Candidate.tested(
-        (mechanism.name,), row, scores, lam, p_value, k, gain, accepted, frf="eng"
+        (*refit.held, mechanism.name), row, scores, lam, p_value, k, gain, accepted, frf="eng"
     )
 
 
@@ -224,7 +224,7 @@ def engine_interval(refit: Refit, found: MismatchMap, candidate: Candidate) -> d
     parameter's search bounds (each model's level refitted, nothing else to re-optimise: the
     drivetrain does not shape |G_ENG|) against the candidate
     (:func:`dtid.identification.uncertainty.profile.interval_and_verdict`)."""
-    mechanism = BY_NAME[candidate.mechanisms[0]]
+    mechanism = BY_NAME[candidate.mechanisms[-1]]
     fit = EngineRuns(refit, found, "fit")
     best = float(candidate.row[EXTRA_INDEX[mechanism.main.name]])
     lower, upper = mechanism.search_bounds()[0]

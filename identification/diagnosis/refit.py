@@ -180,8 +180,11 @@ class Screened:
         Every magnitude the screen tried (SI units) with the drivetrain's normalised free values
         that best accompany it (linearised from the screened model): where refits start.
     frf
-        Where it was screened: ``drv`` (|G_DRV|, here) or ``eng`` (|G_ENG|, an engine-path
-        mechanism, :mod:`dtid.identification.diagnosis.engine_path`).
+        Where it was screened: ``drv`` (|G_DRV|, here), ``eng`` (|G_ENG|, an engine-path
+        mechanism, :mod:`dtid.identification.diagnosis.engine_path`) or ``strokes`` (the
+        strokes' own torques, :mod:`dtid.identification.diagnosis.imbalance`).
+    threshold
+        The |z| its own test needs, where that is not the map's (None: the map's).
     """
 
     mechanism: str
@@ -190,11 +193,12 @@ class Screened:
     start: float
     ladder: tuple[tuple[float, np.ndarray], ...] = dataclasses.field(repr=False, default=())
     frf: str = "drv"
+    threshold: float | None = None
 
     def detectable(self, threshold_z: float) -> bool:
         """Whether the data can see it at all (its imitation-free effect passes the map's
-        threshold)."""
-        return self.visible_z >= threshold_z
+        threshold ``threshold_z``, or its own)."""
+        return self.visible_z >= (threshold_z if self.threshold is None else self.threshold)
 
 
 @dataclass(frozen=True)
@@ -225,9 +229,12 @@ class Candidate:
         the identified model (a refitted baseline can fit the held-out runs worse than the
         identification did).
     frf
-        The FRF whose likelihood ratio and held-out runs tested it: ``drv`` (|G_DRV|), or
-        ``eng`` (|G_ENG|, an engine-path mechanism, whose ``validation_gain`` is then the fall
-        of the held-out runs' RMS z; :mod:`dtid.identification.diagnosis.engine_path`).
+        The FRF whose likelihood ratio and held-out runs tested it: ``drv`` (|G_DRV|), ``eng``
+        (|G_ENG|, an engine-path mechanism, whose ``validation_gain`` is then the fall of the
+        held-out runs' RMS z; :mod:`dtid.identification.diagnosis.engine_path`) or ``strokes``
+        (the strokes' own torques, a cylinder imbalance, whose ``validation_gain`` is the fall of
+        the held-out strokes' departure from its pattern; :mod:`dtid.identification.diagnosis.
+        imbalance`).
     """
 
     mechanisms: tuple[str, ...]
@@ -316,7 +323,8 @@ class Refit:
         :func:`dtid.identification.search.start_values.start_thetas`) seed every refit's
         evolution, as they seeded the identification's.
     held
-        Mechanisms in the model whose parameters no |G_DRV| refit moves: an engine-path
+        Mechanisms in the model whose parameters no |G_DRV| refit moves: a cylinder imbalance
+        read from the strokes (:mod:`dtid.identification.diagnosis.imbalance`), an engine-path
         mechanism fitted on |G_ENG| (:mod:`dtid.identification.diagnosis.engine_path`).
     engine_gain
         K of every model refitted (None: the identified model's). An engine-path mechanism
@@ -331,6 +339,9 @@ class Refit:
     prior: DrivetrainParameters = dataclasses.field(default_factory=reference_parameters)
     held: tuple[str, ...] = ()
     engine_gain: float | None = None
+    row: np.ndarray | None = None
+    """The model the refits extend, a kernel row with the held mechanisms (None: the identified
+    model's, :meth:`start_row`)."""
 
     def __post_init__(self) -> None:
         p = self.parameters
@@ -340,6 +351,16 @@ class Refit:
         self.start_unit = self.base.unit(
             np.array([[theta_from_parameters(p)[n] for n in THETA_NAMES]])
         )[0]
+
+    def start_row(self) -> np.ndarray:
+        """The kernel row of the model the refits extend: :attr:`row`, or the identified
+        model's."""
+        return kernel_parameters(self.parameters.as_array()) if self.row is None else self.row
+
+    def holding(self, candidate: Candidate) -> Refit:
+        """These runs with an accepted candidate's model the one the refits extend, its
+        mechanisms held."""
+        return dataclasses.replace(self, held=candidate.mechanisms, row=candidate.row)
 
     def searched(self, names: Sequence[str]) -> tuple[Mechanism, ...]:
         """The mechanisms among ``names`` whose parameters a |G_DRV| refit searches (all but
@@ -556,7 +577,7 @@ class Refit:
 
     def screen(self, found: MismatchMap, row: np.ndarray | None = None) -> list[Screened]:
         """Step 1 (see the module notes), at ``row`` (the identified model by default)."""
-        row = kernel_parameters(self.parameters.as_array()) if row is None else row
+        row = self.start_row() if row is None else row
         fitted = [r for r in found.residuals if r.role == "fit" and r.frf == "drv"]
         scatter = np.concatenate([r.scatter_db for r in fitted])
         residual = np.concatenate([r.residual_db for r in fitted])
@@ -741,24 +762,21 @@ def diagnose_mechanisms(
     found: MismatchMap,
     allowed: Sequence[str] | None = None,
     screened: Sequence[Screened] | None = None,
-    start: Candidate | None = None,
 ) -> tuple[list[Screened], list[Candidate], list[Candidate]]:
     """Screen, refit and test (the module notes).
 
     Parameters
     ----------
     refit
-        The runs and the identified model.
+        The runs and the model the refits extend (:meth:`Refit.start_row`: the identified
+        model, or one with mechanisms accepted before, held, :meth:`Refit.holding`; the
+        candidates then extend it).
     found
-        The identified model's mismatch map (its scatter standardises the screen).
+        The mismatch map of that model (its scatter standardises the screen).
     allowed
         Mechanisms to consider (default: the whole library).
     screened
         The screen, if already made (:meth:`Refit.screen`).
-    start
-        An accepted engine-path candidate (:mod:`dtid.identification.diagnosis.engine_path`):
-        the refits start from its model and hold its mechanism (``refit.held``); the
-        candidates extend it.
 
     Returns
     -------
@@ -771,8 +789,8 @@ def diagnose_mechanisms(
     chosen = screened[:REFIT_COUNT]
     if not chosen:
         return screened, [], []
-    held = start.mechanisms if start else ()
-    initial = start.row if start else kernel_parameters(refit.parameters.as_array())
+    held = refit.held
+    initial = refit.start_row()
     baseline_row, _ = refit.refit(Extra(refit.base, initial, ()))
     tried: list[Candidate] = []
     accepted: list[Candidate] = []
