@@ -29,7 +29,12 @@ from dtid.identification.diagnosis.mismatch import (
     neighbour_correlation,
     trend_test,
 )
-from dtid.identification.model.cylinder_spread import odd_place, single_share, stroke_factors
+from dtid.identification.model.cylinder_spread import (
+    odd_place,
+    one_cylinder,
+    single_share,
+    stroke_factors,
+)
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs, validation_runs
 from dtid.identification.samples.testdata import from_simulation
@@ -205,12 +210,10 @@ def test_the_strokes_places_follow_the_firing_order_and_the_share_is_its_least_s
     np.testing.assert_allclose(factors, pattern / pattern.mean(), rtol=1e-12)
     assert odd_place(factors) == 2
     share = single_share(factors, 2)
-    fitted = np.full(4, 1 - share / 3)
-    fitted[2] = 1 + share
+    fitted = np.sum((factors - one_cylinder(share, 2)) ** 2)
     for trial in (share - 1e-3, share + 1e-3):  # least squares: any other share misses more
-        other = np.full(4, 1 - trial / 3)
-        other[2] = 1 + trial
-        assert np.sum((factors - other) ** 2) > np.sum((factors - fitted) ** 2)
+        assert np.sum((factors - one_cylinder(trial, 2)) ** 2) > fitted
+    np.testing.assert_allclose(one_cylinder(0.09, 1), [0.97, 1.09, 0.97, 0.97])
 
 
 def test_a_cylinder_imbalance_is_read_from_the_strokes_and_modelled_on_its_own_stroke(

@@ -41,7 +41,12 @@ from scipy import stats
 
 from dtid.identification.diagnosis.mismatch import sidak
 from dtid.identification.diagnosis.refit import ACCEPT_P, Candidate, Refit, Screened, with_mechanism
-from dtid.identification.model.cylinder_spread import odd_place, single_share, stroke_factors
+from dtid.identification.model.cylinder_spread import (
+    odd_place,
+    one_cylinder,
+    single_share,
+    stroke_factors,
+)
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import RunSelection
 from dtid.simulator.angle_grid import N_CYL
@@ -157,9 +162,7 @@ def _held_out(validation: RunSelection | None, share: float, places: dict[str, i
             if not np.isfinite(factors).all():
                 continue
             place = places.get(test.name, odd_place(factors))
-            pattern = np.full(N_CYL, 1.0 - share / (N_CYL - 1))
-            pattern[place] = 1.0 + share
-            pattern_miss.append(factors - pattern)
+            pattern_miss.append(factors - one_cylinder(share, place))
             equal_miss.append(factors - 1.0)
     if not equal_miss:
         return float("nan")
@@ -176,10 +179,9 @@ def screen_strokes(test: StrokeTest) -> Screened:
     explained = []
     for name, factors in test.factors.items():
         f = np.asarray(factors)
-        pattern = np.full(N_CYL, 1.0 - test.share / (N_CYL - 1))
-        pattern[test.places[name]] = 1.0 + test.share
+        miss = f - one_cylinder(test.share, test.places[name])
         spread = float(np.sum((f - 1.0) ** 2))
-        explained.append(1.0 - float(np.sum((f - pattern) ** 2)) / spread if spread > 0 else 0.0)
+        explained.append(1.0 - float(np.sum(miss**2)) / spread if spread > 0 else 0.0)
     needed = float(stats.norm.isf(0.5 * (1.0 - (1.0 - ACCEPT_P) ** (1.0 / N_CYL))))
     return Screened(
         MECHANISM.name,

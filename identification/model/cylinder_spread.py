@@ -64,9 +64,17 @@ def odd_place(factors: np.ndarray) -> int:
     return int(np.argmax(np.abs(factors - others)))
 
 
+def one_cylinder(share: float, place: int) -> np.ndarray:
+    """The factors (N_CYL,) of a ``cylinder_imbalance``: 1 + share at ``place``, 1 - share /
+    (N_CYL - 1) elsewhere (mean 1)."""
+    pattern = np.full(N_CYL, 1.0 - share / (N_CYL - 1))
+    pattern[place] = 1.0 + share
+    return pattern
+
+
 def single_share(factors: np.ndarray, place: int) -> float:
     """The ``cylinder_imbalance`` share that fits ``factors`` (N_CYL,) best (least squares) with
-    its cylinder at ``place``: the pattern 1 + s there and 1 - s / (N_CYL - 1) elsewhere, whose
-    departure from the others' mean is s N_CYL / (N_CYL - 1)."""
+    its cylinder at ``place``: the pattern :func:`one_cylinder`, whose departure there from the
+    others' mean is s N_CYL / (N_CYL - 1)."""
     others = (np.sum(factors) - factors[place]) / (N_CYL - 1)
     return float((factors[place] - others) * (N_CYL - 1) / N_CYL)
