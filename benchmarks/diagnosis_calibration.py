@@ -8,7 +8,9 @@ each with its own noise seed. For each recording the mismatch map of ``dtid diag
 * at the truth (K and T_loss as measured from the recording, as an identification gets them):
   a right model, so any band is a false alarm; the family-wise error asked for is 1 %;
 * at the truth with one coupling value off by a factor (``--errors``, default c12 and c23 at
-  +5, +10 and +20 %): how often the map declares the model inadequate.
+  +5, +10 and +20 %): how often the map declares the model inadequate;
+* the strokes' test of equal cylinders (:mod:`dtid.identification.diagnosis.imbalance`): these
+  engines have equal cylinders, so a significant spread is a false alarm too.
 
 No identification is run (that is ``--identified N``: the first N recordings are also identified
 with the default search and diagnosed as ``dtid diagnose`` would, about a minute each).
@@ -30,7 +32,9 @@ from pathlib import Path
 
 from benchmarks.identification_trial import PLAN, draw_truth, draw_vehicle
 from dtid.identification.diagnosis.diagnose import diagnose_report
+from dtid.identification.diagnosis.imbalance import stroke_test
 from dtid.identification.diagnosis.mismatch import MismatchMap, mismatch_map
+from dtid.identification.diagnosis.refit import ACCEPT_P
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import (
     identification_runs,
@@ -90,6 +94,9 @@ def main() -> None:
         base = truth.replace(K=engine_gain([identifying]), T_loss=kept.idle_torque_nm)
         row: dict[str, object] = {"vehicle": index}
         row["truth"] = verdict(mismatch_map(base, selections))
+        strokes = stroke_test(fit, valid)
+        if strokes is not None:
+            row["cylinders"] = {"p": strokes.p_value, "share": strokes.share}
         for item in args.errors:
             name, factor = item.split("=")
             wrong = base.replace(**{name: getattr(base, name) * float(factor)})
@@ -121,6 +128,12 @@ def main() -> None:
                 f"{key:>10}: declared inadequate {flagged} of {len(rows)} ({engine} in |G_ENG|, "
                 f"{trend} with a trend)"
             )
+    spread = [case["cylinders"]["p"] for case in cases if "cylinders" in case]  # type: ignore[index]
+    if spread:
+        summary["cylinders"] = {"significant": sum(p < ACCEPT_P for p in spread), "of": len(spread)}
+        print(
+            f" cylinders: a spread found on {summary['cylinders']['significant']} of {len(spread)}"
+        )
     document = {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "seconds": time.perf_counter() - began,

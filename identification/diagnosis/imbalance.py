@@ -22,9 +22,11 @@ request:
    when p < :data:`dtid.identification.diagnosis.refit.ACCEPT_P` and that gain is positive.
 3. **Model.** The share goes into the model on the recording's own odd stroke
    (:attr:`dtid.identification.model.idle_loop.IdleLoop.odd_stroke`): the model's line then
-   has the vehicle's phase, and the mismatch map of the model with it is drawn again (on the
-   trial's two vehicles with a band, the band goes; with the share on another stroke, the model
-   made a band of its own). The other mechanisms are then tried on top of that model.
+   has the vehicle's phase. The drivetrain is refitted on |G_DRV| with the share held (as a
+   refit's baseline, :meth:`dtid.identification.diagnosis.refit.Refit.refit`), and the mismatch
+   map of that model is drawn again (on the trial's two vehicles with a band, the band goes;
+   with the share on another stroke, the model made a band of its own). The other mechanisms
+   are then tried on top of that model.
 
 The test does not depend on the map: an imbalance too small to show in any FRF is still named
 when the strokes show it, and an engine whose strokes show none is adequate whatever the map
@@ -40,7 +42,14 @@ import numpy as np
 from scipy import stats
 
 from dtid.identification.diagnosis.mismatch import sidak
-from dtid.identification.diagnosis.refit import ACCEPT_P, Candidate, Refit, Screened, with_mechanism
+from dtid.identification.diagnosis.refit import (
+    ACCEPT_P,
+    Candidate,
+    Extra,
+    Refit,
+    Screened,
+    with_mechanism,
+)
 from dtid.identification.model.cylinder_spread import (
     odd_place,
     one_cylinder,
@@ -194,8 +203,13 @@ def screen_strokes(test: StrokeTest) -> Screened:
 
 
 def imbalance_candidate(refit: Refit, test: StrokeTest) -> Candidate:
-    """Step 3's model, tested by steps 1 and 2: the model the refits extend with the share."""
+    """Step 3's model, tested by steps 1 and 2: the model the refits extend with the share, and
+    when accepted its drivetrain refitted on |G_DRV| with the share held (the identification
+    bent it around the line: blind trial case 2 held the identified drivetrain with the share
+    added at a held-out NRMSE of 0.122 where 0.091 without)."""
     row = with_mechanism(refit.start_row(), MECHANISM, test.share)
+    if test.accepted:
+        row, _ = refit.refit(Extra(refit.base, row, ()))
     return Candidate.tested(
         (*refit.held, MECHANISM.name),
         row,
