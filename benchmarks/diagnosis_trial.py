@@ -126,6 +126,7 @@ def run_case(index: int, clean: float) -> dict[str, object]:
         "absorbed": [entry.as_dict() for entry in diagnosis.absorbed],
         "bands": len(diagnosis.mismatch.bands),
         "global_p": diagnosis.mismatch.global_p_value,
+        "cylinders_p": None if diagnosis.cylinders is None else diagnosis.cylinders.p_value,
         "identify_s": identified_s,
         "diagnose_s": diagnosis.seconds,
     }
