@@ -469,6 +469,7 @@ def _diagnosis_section(
                     "indistinguishable here",
                     escape(", ".join(verdict.get("indistinguishable") or []) or "none"),
                 ),
+                ("cylinders (torque factor by place in the firing order)", _cylinders(document)),
             ],
             header=False,
         )
@@ -500,6 +501,19 @@ def _diagnosis_section(
             "|G_DRV| over the standardised residual, before and after.</figcaption></figure>"
         )
     return "\n".join(parts)
+
+
+def _cylinders(document: dict[str, Any]) -> str:
+    """The strokes' verdict on the cylinders, as table text."""
+    cylinders = document.get("cylinders")
+    if not cylinders:
+        return "not tested (no torque request on the bus)"
+    factors = "; ".join(
+        f"{escape(name)}: " + ", ".join(f"{f:.3f}" for f in values)
+        for name, values in cylinders.get("factors", {}).items()
+    )
+    verdict = "unequal" if cylinders.get("significant") else "equal within their scatter"
+    return f"{verdict} (p = {cylinders.get('p_value', 1.0):.2g}; {factors})"
 
 
 def _versions_section(
