@@ -393,9 +393,8 @@ def diagnose(
             refit = refit.holding(accepted[-1])
             start = mismatch_map(accepted[-1].row, selections, draws)
     engine_map = start
-    screened_eng, tried_eng, engine = diagnose_engine(
-        refit, engine_map, engine_mechanisms(engine_map, allowed)
-    )
+    on_engine = engine_mechanisms(engine_map, allowed)
+    screened_eng, tried_eng, engine = diagnose_engine(refit, engine_map, on_engine)
     screened += screened_eng
     candidates += tried_eng
     if engine:  # the refits hold its mechanism and the K its |G_ENG| asked for
@@ -403,7 +402,8 @@ def diagnose(
         refit = dataclasses.replace(refit.holding(engine), engine_gain=engine.drivetrain().K)
         # the drivetrain's mechanisms answer what the model with it misses
         start = mismatch_map(engine.row, selections, draws)
-    drivetrain = [m for m in allowed if BY_NAME[m].path == "drivetrain"]
+    # on |G_DRV|: the drivetrain's, and an engine path's where no request gives |G_ENG|
+    drivetrain = [m for m in allowed if BY_NAME[m] not in on_engine and m != MECHANISM.name]
     if drivetrain:
         at = refit.start_row() if accepted else None
         screened += [s for s in refit.screen(start, at) if s.mechanism in drivetrain]
