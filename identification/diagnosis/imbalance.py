@@ -16,10 +16,11 @@ request:
    of the blocks' mean share (a block spans a few seconds: the chirp's alias of the cycle
    frequency correlates the strokes within a block, hardly across), two-sided, Sidak over the
    places each recording chose among. Its likelihood-ratio statistic is t^2.
-2. **Held out.** The held-out runs' factors against the pattern the share predicts (the place
-   taken from the same recording's identifying strokes, or the run's own for another
-   recording): ``validation_gain`` = 1 - RMS(factors - pattern) / RMS(factors - 1). Accepted
-   when p < :data:`dtid.identification.diagnosis.refit.ACCEPT_P` and that gain is positive.
+2. **Held out.** The held-out runs' factors against the pattern the share predicts, on the
+   place the model puts it (their recording's odd stroke, :attr:`dtid.identification.model.
+   idle_loop.IdleLoop.odd_stroke`): ``validation_gain`` = 1 - RMS(factors - pattern) /
+   RMS(factors - 1). Accepted when p < :data:`dtid.identification.diagnosis.refit.ACCEPT_P`
+   and that gain is positive.
 3. **Model.** The share goes into the model on the recording's own odd stroke
    (:attr:`dtid.identification.model.idle_loop.IdleLoop.odd_stroke`): the model's line then
    has the vehicle's phase. The drivetrain is refitted on |G_DRV| with the share held (as a
@@ -156,11 +157,12 @@ def stroke_test(fit: RunSelection, validation: RunSelection | None) -> StrokeTes
     error = float(np.std(values, ddof=1) / np.sqrt(len(values)))
     single = float(2 * stats.t.sf(abs(share) / error, len(values) - 1)) if error > 0 else 1.0
     p_value = sidak(single, N_CYL ** len(places))
-    return StrokeTest(share, error, p_value, places, factors, _held_out(validation, share, places))
+    return StrokeTest(share, error, p_value, places, factors, _held_out(validation, share))
 
 
-def _held_out(validation: RunSelection | None, share: float, places: dict[str, int]) -> float:
-    """Step 2: the held-out runs' fall of RMS departure from the pattern the share predicts."""
+def _held_out(validation: RunSelection | None, share: float) -> float:
+    """Step 2: the held-out runs' fall of RMS departure from the pattern the share predicts, on
+    the place the model puts it (its recording's odd stroke)."""
     if not _by_request(validation):
         return float("nan")
     assert validation is not None
@@ -170,8 +172,7 @@ def _held_out(validation: RunSelection | None, share: float, places: dict[str, i
             factors = stroke_factors(*_strokes(test, i))[0]
             if not np.isfinite(factors).all():
                 continue
-            place = places.get(test.name, odd_place(factors))
-            pattern_miss.append(factors - one_cylinder(share, place))
+            pattern_miss.append(factors - one_cylinder(share, test.loop.odd_stroke))
             equal_miss.append(factors - 1.0)
     if not equal_miss:
         return float("nan")
