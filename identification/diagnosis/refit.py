@@ -514,19 +514,19 @@ class Refit:
 
     def gated_refit(
         self, extra: Extra, ladder: Sequence[tuple[np.ndarray, np.ndarray | None]], gain: float
-    ) -> tuple[np.ndarray, bool]:
+    ) -> np.ndarray:
         """A candidate's refit, searched in full only where the screen or its polished starts
         show it can explain something: the screen's linearised ``gain`` at least
         :data:`SCREEN_GATE`, or the best start's eq. (17) (one realization) at least
         :data:`SEARCH_GATE` below the first start's (the model it extends, the mechanism
         neutral). Otherwise the best start is the candidate (its test then finds it
-        insignificant). The kernel row and whether it was searched."""
+        insignificant). The kernel row reached."""
         starts = self.starts(extra, ladder)
         coarse = self.objective(extra).replacing(realizations=1)(np.array(starts))
         if gain >= SCREEN_GATE or np.nanmin(coarse) <= (1.0 - SEARCH_GATE) * coarse[0]:
-            return self.search(extra, starts)[0], True
+            return self.search(extra, starts)[0]
         best = starts[int(np.nanargmin(coarse))] if np.isfinite(coarse).any() else starts[0]
-        return extra.parameters(best[None])[0], False
+        return extra.parameters(best[None])[0]
 
     def against_own_null(
         self, candidate: Candidate, current: tuple[str, ...], tried: int
@@ -850,7 +850,7 @@ def diagnose_mechanisms(
                 )
                 for value, target in s.ladder
             ]
-            row, _ = refit.gated_refit(extra, ladder, s.gain)
+            row = refit.gated_refit(extra, ladder, s.gain)
             k = len(mechanism.parameters)
             round_.append(refit.test((*current, s.mechanism), row, current_row, k, len(pool)))
         round_ = [
