@@ -12,7 +12,8 @@ request:
 
 1. **Test.** Each identifying run's strokes in :data:`BLOCKS` blocks of consecutive strokes;
    each block's share (:func:`dtid.identification.model.cylinder_spread.single_share`) with the
-   cylinder at the place the recording's identifying strokes show departing most. Student's t
+   cylinder at the place the recording's strokes show departing most, where the model puts it
+   (:attr:`dtid.identification.model.idle_loop.IdleLoop.odd_stroke`). Student's t
    of the blocks' mean share (a block spans a few seconds: the chirp's alias of the cycle
    frequency correlates the strokes within a block, hardly across), two-sided, Sidak over the
    places each recording chose among. Its likelihood-ratio statistic is t^2.
@@ -52,7 +53,6 @@ from dtid.identification.diagnosis.refit import (
     with_mechanism,
 )
 from dtid.identification.model.cylinder_spread import (
-    odd_place,
     one_cylinder,
     single_share,
     stroke_factors,
@@ -144,7 +144,7 @@ def stroke_test(fit: RunSelection, validation: RunSelection | None) -> StrokeTes
     for test, runs in zip(fit.tests, fit.runs, strict=True):
         strokes = [_strokes(test, i) for i in runs]
         pooled = stroke_factors(*(np.concatenate(parts) for parts in zip(*strokes, strict=True)))
-        place = odd_place(pooled[0])
+        place = test.loop.odd_stroke  # where the model puts it
         places[test.name], factors[test.name] = place, [float(f) for f in pooled[0]]
         for number, torque, request in strokes:
             blocks = stroke_factors(number, torque, request, BLOCKS)
