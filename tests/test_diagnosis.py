@@ -21,12 +21,14 @@ from dtid.identification.diagnosis.mismatch import (
     EDGE_Z,
     TREND_DEGREE,
     TREND_LAGS,
+    TREND_WINDOW,
     RunResidual,
     bin_autocorrelation,
     family_p_value,
     find_bands,
     mismatch_map,
     neighbour_correlation,
+    trend_db,
     trend_test,
 )
 from dtid.identification.model.cylinder_spread import (
@@ -333,6 +335,30 @@ def test_the_trend_test_is_chi_square_on_correlated_bins_and_finds_a_slope_no_bi
     t2, dof, trend = trend_test(slope, f, acf)
     assert stats.chi2.sf(t2, dof) < 1e-4
     np.testing.assert_allclose(trend, slope, atol=1e-12)
+
+
+def test_a_trend_bands_excess_is_the_residuals_running_mean_never_beyond_it():
+    """A mode the model lacks (-9 dB, then +7 dB), the band's last bins noisy: the trend band's
+    excess is the residual's inverse-variance running mean over a quarter of the band, within
+    the residual's range (the cubic of the test, read back bin by bin, is not)."""
+    n = 120
+    f = np.linspace(2.5, 13.5, n)
+    measured = np.where((f > 10.0) & (f < 11.7), -9.0, 0.0) + np.where(f >= 11.7, 7.0, 0.0)
+    scatter = np.full(n, 0.5)
+    scatter[-6:] = 9.0
+    z = measured / scatter
+    residual = RunResidual("r", "fit", "drv", 5.0, f, measured, np.zeros(n), scatter, z, z)
+    excess = trend_db(residual)
+    assert np.nanmin(excess) >= -9.0 and np.nanmax(excess) <= 7.0
+    width = round(TREND_WINDOW * n)
+    i = 60  # a window of equal weights: the plain mean of its bins
+    window = slice(i - width // 2, i - width // 2 + width)
+    assert excess[i] == pytest.approx(np.mean(measured[window]), abs=1e-12)
+    i = n - 1  # the noisy last bins weigh (0.5 / 9)^2 as much
+    weight = scatter[i - width // 2 :] ** -2.0
+    expected = np.sum(weight * measured[i - width // 2 :]) / np.sum(weight)
+    assert excess[i] == pytest.approx(expected, abs=1e-12)
+    assert np.max(np.abs(trend_test(z, f, np.array([1.0]))[2] * scatter)) > 9.0
 
 
 def test_family_p_value_is_sidaks_with_students_t():

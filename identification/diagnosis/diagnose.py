@@ -160,15 +160,17 @@ class Diagnosis:
             return text + "."
         misses = []
         if test.bands:
-            first = test.bands[0]
+            # a located band first: a run's smooth trend spans its whole band
+            first = next((b for b in test.bands if b.kind == "bins"), test.bands[0])
             where = (
                 f"|G_{first.frf.upper()}| at {first.amplitude_nm:g} N*m, {first.f_lo_hz:.1f}-"
                 f"{first.f_hi_hz:.1f} Hz, {first.excess_db:+.1f} dB, p = {first.p_value:.1g}"
+                f"{', a smooth trend' if first.kind == 'trend' else ''}"
             )
             count = len(test.bands)
             misses.append(
                 f"misses these recordings in {count} band{'s' if count > 1 else ''} (most "
-                f"significant: {where})"
+                f"significant located: {where})"
             )
         cylinders = self.cylinders
         if cylinders is not None and cylinders.significant:
