@@ -5,18 +5,20 @@ mechanisms that show in |G_DRV| (one on the engine path is decided on |G_ENG| wh
 recordings carry the ECU's request: :mod:`dtid.identification.diagnosis.engine_path`):
 
 1. **Screen** (one batched simulation). At the identified model, the Jacobian of the model's
-   |G_DRV| with respect to the ten free parameters, and each mechanism's effect at the two ends
-   of its typical magnitude (:attr:`dtid.simulator.mechanisms.MechanismParameter.typical`; both
-   signs for a signed one), all in units of the recording's scatter (the mismatch map's z). What
-   the drivetrain parameters can imitate is projected out; what remains is what only the
+   |G_DRV| with respect to the ten free parameters, and each mechanism's effect at
+   :data:`SCREEN_MAGNITUDES` values across its typical magnitude
+   (:attr:`dtid.simulator.mechanisms.MechanismParameter.typical`; both signs for a signed
+   one), all in units of the recording's scatter (the mismatch map's z). What the drivetrain
+   parameters can imitate is projected out; what remains is what only the
    mechanism can do (``visible_z``, its largest |z|). The screen orders the candidates by how
    much of the residual a mechanism and the drivetrain's linearised compensation of it explain
-   (a least-squares gain), and gives each refit its start. It is local: where the identification
+   (a least-squares gain), and gives each refit its starts (the two magnitudes that explain
+   most). It is local: where the identification
    has bent its parameters around the missing physics (a gearbox drag's preload closing the DMF
    play, absorbed as a smaller play), a mechanism can look invisible at the identified model and
    still explain the data once the parameters move back. So every mechanism gets its refit's
-   starts, the drivetrain polished at each magnitude with the compensation (step 2), and the
-   full search where the screen's gain or those starts say it can explain part of the
+   starts, the drivetrain polished at each of those magnitudes with the compensation (step 2),
+   and the full search where the screen's gain or those starts say it can explain part of the
    residual (:meth:`Refit.gated_refit`); one the screen finds invisible at a model that
    explains the data *and* whose refit gains nothing is listed as indistinguishable
    (:attr:`dtid.identification.diagnosis.diagnose.Diagnosis.indistinguishable`): a uniform
@@ -109,6 +111,12 @@ GLOBAL_POPSIZE = 10
 GLOBAL_GENERATIONS = 25
 """A refit's differential evolution: generations (the identification's 12 x 40 found no more on
 a concealed progressive spring and took twice as long)."""
+SCREEN_MAGNITUDES = 8
+"""Values of a mechanism's main parameter the screen tries across its typical range (per sign):
+one that moves a resonance (an accessory's inertia moves its mode from 14.8 to 9.1 Hz over its
+range) shows only near its own, which the ends of the range alone miss."""
+LADDER_STEPS = 2
+"""Magnitudes a refit's ladder starts from: the screen's best by their gain."""
 LADDER_EVALUATIONS = 150
 """Nelder-Mead evaluations of each ladder start's drivetrain-only polish."""
 SCREEN_GATE = 0.05
@@ -194,8 +202,9 @@ class Screened:
     start
         The magnitude of its main parameter the screen preferred, SI units.
     ladder
-        Every magnitude the screen tried (SI units) with the drivetrain's normalised free values
-        that best accompany it (linearised from the screened model): where refits start.
+        The :data:`LADDER_STEPS` magnitudes the screen tried that explain most (SI units, the
+        best first), each with the drivetrain's normalised free values that best accompany it
+        (linearised from the screened model): where refits start.
     frf
         Where it was screened: ``drv`` (|G_DRV|, here), ``eng`` (|G_ENG|, an engine-path
         mechanism, :mod:`dtid.identification.diagnosis.engine_path`) or ``strokes`` (the
@@ -646,7 +655,7 @@ class Refit:
         projector = np.eye(len(z)) - jac @ inverse[moved]
         z_free = projector @ z
         total = float(z_free @ z_free) or 1.0
-        by_name: dict[str, Screened] = {}
+        tried: dict[str, list[tuple[float, float, float, np.ndarray]]] = {}
         for (name, value), curve in zip(trials, curves[2 * n + 1 :], strict=True):
             effect = ((curve - base) / scatter)[usable]
             if not (len(effect) and np.isfinite(effect).all()):
@@ -655,15 +664,20 @@ class Refit:
             visible = float(np.max(np.abs(projector @ effect)))
             gain = max(0.0, 1.0 - float(left @ left) / total)
             compensation = np.clip(unit + inverse @ (z - effect), 0, 1)
-            old = by_name.get(name) or Screened(name, 0.0, -1.0, value)
-            by_name[name] = Screened(
-                name,
-                max(visible, old.visible_z),
-                max(gain, old.gain),
-                value if gain > old.gain else old.start,
-                (*old.ladder, (value, compensation)),
+            tried.setdefault(name, []).append((gain, visible, value, compensation))
+        out = []
+        for name, values in tried.items():
+            values.sort(key=lambda entry: -entry[0])  # stable: the first tried among equals
+            out.append(
+                Screened(
+                    name,
+                    max(entry[1] for entry in values),
+                    values[0][0],
+                    values[0][2],
+                    tuple((value, target) for _, _, value, target in values[:LADDER_STEPS]),
+                )
             )
-        return sorted(by_name.values(), key=lambda s: -s.gain)
+        return sorted(out, key=lambda s: -s.gain)
 
     def test(
         self,
@@ -778,14 +792,15 @@ def theta_of(row: np.ndarray) -> list[float]:
 
 
 def _magnitudes(mechanism: Mechanism) -> list[float]:
-    """Main-parameter values the screen tries: the ends of the typical range, both signs where
-    the parameter may be negative (about its neutral value)."""
+    """Main-parameter values the screen tries: :data:`SCREEN_MAGNITUDES` across the typical
+    range, the top first, mirrored about the neutral value where the parameter may lie on
+    both sides of it (unless the typical range already does)."""
     main = mechanism.main
     low, high = main.typical
-    values = [low, high]
-    if main.lower < main.neutral:  # signed about neutral
-        values += [2 * main.neutral - low, 2 * main.neutral - high]
-    return values
+    values = list(np.linspace(high, low, SCREEN_MAGNITUDES))
+    if main.lower < main.neutral and low > main.neutral:  # signed about neutral
+        values += [2 * main.neutral - v for v in values]
+    return [float(v) for v in values]
 
 
 def with_mechanism(row: np.ndarray, mechanism: Mechanism, value: float) -> np.ndarray:
