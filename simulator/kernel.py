@@ -76,6 +76,7 @@ from dtid.simulator.angle_grid import (
 from dtid.simulator.couplings import (
     backlash_torque,
     backlash_update,
+    belt_is_rigid,
     dmf_smooth_torque,
     friction_impulse,
     second_stage_torque,
@@ -359,12 +360,14 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
     c12, c23, d12, d23 = params[3], params[4], params[5], params[6]
     tc12, half12, half23 = params[7], 0.5 * params[8], 0.5 * params[9]
     t_loss, gain = params[10], params[11]
+    j4, c14, d14 = params[P_J4], params[P_C14], params[P_D14]
+    if j4 > 0.0 and belt_is_rigid(j1, j4, c14):  # accessory_mode: moves with the crank
+        j1, j4 = j1 + j4, 0.0
     inv1, inv2, inv3 = 1.0 / j1, 1.0 / j2, 1.0 / j3
     c12_2, knee12, d12_2 = params[P_C12_2], params[P_KNEE12], params[P_D12_2]
     shift12 = params[P_ASYM12] * half12  # the free play's centre, asymmetric_play
     tc12_2, phi12_f = params[P_TC12_2], params[P_PHI12_F]
     c23_2, knee23, d3 = params[P_C23_2], params[P_KNEE23], params[P_D3]
-    j4, c14, d14 = params[P_J4], params[P_C14], params[P_D14]
     inv4 = 1.0 / j4 if j4 > 0.0 else 0.0
     belt_c, belt_d = (c14, d14) if j4 > 0.0 else (0.0, 0.0)
     dmf = (c12, d12, half12, shift12, c12_2, knee12, d12_2)

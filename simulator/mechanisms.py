@@ -228,7 +228,8 @@ MECHANISMS: tuple[Mechanism, ...] = (
     Mechanism(
         "accessory_mode",
         "A belt-driven accessory (alternator) of inertia J4, reflected to the crank, hangs on J1 "
-        "through the belt's stiffness c14 and damping d14: an extra mode.",
+        "through the belt's stiffness c14 and damping d14: an extra mode (above 100 Hz, "
+        "beyond the band, it moves with the crank).",
         (
             _p(
                 "J4",

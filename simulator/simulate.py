@@ -22,6 +22,7 @@ from dtid.simulator.angle_grid import (
     STEPS_PER_STROKE,
 )
 from dtid.simulator.controller import IdleController
+from dtid.simulator.couplings import belt_is_rigid
 from dtid.simulator.engine import EngineGeometry, EngineTables, engine_tables
 from dtid.simulator.kernel import (
     INTEGRATION,
@@ -293,6 +294,8 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
         c23 += params[P_C23_2]
         d12 += 2 * params[P_D12_2] * QUADRATIC_RATE_RAD_S
         j4 = params[P_J4]
+        if j4 > 0 and belt_is_rigid(j1, j4, params[P_C14]):  # lumped into J1 by the kernel
+            j1, j4 = j1 + j4, 0.0
         if j4 > 0:
             c14, d14 = params[P_C14], params[P_D14]
     stiff = max(2 * (c12 + c14) / j1, 2 * (c12 + c23) / j2, 2 * c23 / j3)

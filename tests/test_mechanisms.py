@@ -136,6 +136,32 @@ def test_accessory_mode_adds_a_mode_and_is_stable(reference):
     assert np.sqrt(np.mean((belt.speed_rpm - plain.speed_rpm[: len(belt.speed_rpm)]) ** 2)) > 0.5
 
 
+def test_a_belt_stiffer_than_its_limit_moves_the_accessory_with_the_crank(reference):
+    """An accessory whose belt mode lies above BELT_RIGID_HZ is the crank's inertia plus its
+    own, bit for bit, and needs no more substeps than the plant without it (a refit passing
+    J4 -> 0 at a finite belt stiffness asked for thousands); one just below the limit keeps
+    its mode."""
+    from dtid.simulator.couplings import BELT_RIGID_HZ, belt_is_rigid
+    from dtid.simulator.simulate import substeps
+
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=4.0)
+    c14 = 130.0
+    limit = (2 * np.pi * BELT_RIGID_HZ) ** 2
+    rigid_j4 = 0.9 * c14 / (limit - c14 / reference.J1)  # mode 5 % above the limit
+    assert belt_is_rigid(reference.J1, rigid_j4, c14)
+    assert not belt_is_rigid(reference.J1, 1.3 * rigid_j4, c14)
+    belt = run(reference, plan, J4=rigid_j4, c14=c14, d14=0.125)
+    lumped = run(reference.replace(J1=reference.J1 + rigid_j4), plan)
+    np.testing.assert_array_equal(belt.speed_rpm, lumped.speed_rpm)
+    controller = IdleController()
+    plain = kernel_parameters(reference.as_array())
+    row = plain.copy()
+    row[[EXTRA_INDEX["J4"], EXTRA_INDEX["c14"]]] = 1e-6, c14
+    assert substeps(row, controller) == substeps(plain, controller)
+    flexible = run(reference, plan, J4=1.3 * rigid_j4, c14=c14, d14=0.125)
+    assert np.isfinite(flexible.speed_rpm).all()
+
+
 def test_effect_options_parse_and_refuse_clearly():
     assert parse_effect("gearbox_drag:d3=0.01") == {"d3": 0.01}
     values = parse_effect("progressive_spring")
