@@ -56,6 +56,56 @@ from dtid.identification.pipeline import (
 from dtid.simulator.mechanisms import BY_NAME, MECHANISMS, kernel_parameters
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
+REFIT_REPORTED = 0.05
+"""Relative change from which a refitted drivetrain parameter is named in the verdict."""
+
+
+@dataclass(frozen=True)
+class DrivetrainRefit:
+    """The model the mechanisms' refits extend, refitted without any (their own baseline,
+    :func:`dtid.identification.diagnosis.refit.diagnose_mechanisms`), and its mismatch map.
+
+    Where that map is adequate while the identified model's is not, the recordings need no
+    missing physics but other drivetrain values: the identification ended short of the best
+    fit (a search caught in another basin), or a mechanism present is absorbed by them.
+
+    Attributes
+    ----------
+    parameters, before
+        The drivetrain refitted, and the identified one.
+    found
+        Its mismatch map.
+    nrmse
+        ``{"fit": {run: value}, "validation": {run: value}}``.
+    """
+
+    parameters: DrivetrainParameters
+    before: DrivetrainParameters
+    found: MismatchMap
+    nrmse: Mapping[str, Mapping[str, float]]
+
+    def changes(self) -> dict[str, tuple[float, float]]:
+        """Setup-4 drivetrain parameters moved by at least :data:`REFIT_REPORTED`, largest
+        relative change first: ``{name: (identified, refitted)}``."""
+        before, after = self.before.as_dict(), self.parameters.as_dict()
+        moved = {
+            name: (before[name], after[name])
+            for name in NAMES
+            if name not in ("T_loss", "K")
+            and abs(after[name] - before[name]) >= REFIT_REPORTED * abs(before[name]) > 0
+        }
+        return dict(sorted(moved.items(), key=lambda item: -abs(item[1][1] / item[1][0] - 1.0)))
+
+    def as_dict(self) -> dict[str, object]:
+        """The verdict's ``drivetrain_refit`` entry."""
+        return {
+            "parameters": self.parameters.as_dict(),
+            "adequate": self.found.adequate,
+            "global_p_value": self.found.global_p_value,
+            "bands": len(self.found.bands),
+            "nrmse": {role: dict(values) for role, values in self.nrmse.items()},
+        }
+
 
 @dataclass(frozen=True)
 class Diagnosis:
@@ -91,6 +141,9 @@ class Diagnosis:
     cylinders
         What the strokes say of the cylinders (None: not asked, or no torque request on the
         bus; :mod:`dtid.identification.diagnosis.imbalance`).
+    refitted
+        Where |G_DRV| refits ran and none was accepted: the drivetrain refitted alone and its
+        map (None otherwise).
     """
 
     baseline: Mapping[str, Any]
@@ -105,6 +158,7 @@ class Diagnosis:
     intervals: Mapping[str, Mapping[str, object]] | None = None
     absorbed: tuple[Absorbed, ...] = ()
     cylinders: StrokeTest | None = None
+    refitted: DrivetrainRefit | None = None
 
     @property
     def mechanisms(self) -> tuple[str, ...]:
@@ -196,6 +250,19 @@ class Diagnosis:
                 text += f"; {left} band{'s' if left > 1 else ''} remain unexplained"
             return text + "."
         tried = ", ".join(c.mechanisms[-1] for c in self.candidates)
+        refitted = self.refitted
+        if refitted is not None and refitted.found.adequate:
+            moved = ", ".join(
+                f"{name} {old:.4g} -> {new:.4g}"
+                for name, (old, new) in list(refitted.changes().items())[:4]
+            )
+            return text + (
+                f"; no mechanism of the library explains it better than the drivetrain "
+                f"refitted alone (refitted with: {tried}), which explains the recordings "
+                f"(largest deviation p = {refitted.found.global_p_value:.2g}): the "
+                f"identification ended short of the best fit, or a mechanism present is "
+                f"absorbed by {moved or 'the drivetrain parameters'}."
+            )
         text += (
             f"; no mechanism of the library explains it (refitted: {tried})"
             if tried
@@ -259,6 +326,7 @@ class Diagnosis:
             "explanation": self.sentence(),
             "indistinguishable": list(self.indistinguishable),
             "absorbed": [entry.as_dict() for entry in self.absorbed],
+            "drivetrain_refit": None if self.refitted is None else self.refitted.as_dict(),
         }
         if not self.accepted:
             return {
@@ -383,6 +451,7 @@ def diagnose(
     screened: list[Screened] = []
     candidates: list[Candidate] = []
     accepted: list[Candidate] = []
+    refitted = None
     # the strokes first: the cylinders' spread, whatever the map says (imbalance.py's notes)
     strokes = stroke_test(refit.fit, refit.validation) if MECHANISM.name in allowed else None
     start = found
@@ -410,12 +479,19 @@ def diagnose(
         at = refit.start_row() if accepted else None
         screened += [s for s in refit.screen(start, at) if s.mechanism in drivetrain]
     if any(band.frf == "drv" for band in start.bands) and drivetrain:
-        screened_drv, tried, accepted_drv = diagnose_mechanisms(
+        screened_drv, tried, accepted_drv, alone = diagnose_mechanisms(
             refit, start, drivetrain, [s for s in screened if s.frf == "drv"]
         )
         screened = [s for s in screened if s.frf != "drv"] + screened_drv
         candidates += tried
         accepted += accepted_drv
+        if alone is not None and not accepted_drv:
+            refitted = DrivetrainRefit(
+                DrivetrainParameters.from_array(alone[: len(NAMES)]),
+                DrivetrainParameters.from_array(refit.start_row()[: len(NAMES)]),
+                mismatch_map(alone, selections, draws),
+                refit.run_nrmse(alone),
+            )
     candidates.sort(key=lambda c: c.criterion)
     after = intervals = None
     if accepted:
@@ -444,6 +520,7 @@ def diagnose(
         after,
         intervals,
         cylinders=strokes,
+        refitted=refitted,
     )
     final = accepted[-1].row if accepted else kernel_parameters(parameters.as_array())
     absorbed = tuple(refit.absorbed(BY_NAME[m], final) for m in diagnosis.indistinguishable)

@@ -819,7 +819,7 @@ def diagnose_mechanisms(
     found: MismatchMap,
     allowed: Sequence[str] | None = None,
     screened: Sequence[Screened] | None = None,
-) -> tuple[list[Screened], list[Candidate], list[Candidate]]:
+) -> tuple[list[Screened], list[Candidate], list[Candidate], np.ndarray | None]:
     """Screen, refit and test (the module notes).
 
     Parameters
@@ -838,14 +838,15 @@ def diagnose_mechanisms(
     Returns
     -------
     tuple
-        The screen of every mechanism, every candidate tried (best criterion first) and the
-        accepted ones in the order accepted.
+        The screen of every mechanism, every candidate tried (best criterion first), the
+        accepted ones in the order accepted, and the kernel row of the model before them
+        refitted alone (the candidates' baseline; None when nothing was refitted).
     """
     names = list(allowed) if allowed else [m.name for m in MECHANISMS]
     screened = [s for s in screened or refit.screen(found) if s.mechanism in names]
     chosen = screened[:REFIT_COUNT]
     if not chosen:
-        return screened, [], []
+        return screened, [], [], None
     held = refit.held
     initial = refit.start_row()
     baseline_row, _ = refit.refit(Extra(refit.base, initial, ()))
@@ -881,4 +882,4 @@ def diagnose_mechanisms(
         pool.sort(key=lambda s: ranked.index(s.mechanism))
         pool = [s for s in pool if s.mechanism not in current][:COMBINED]
     tried.sort(key=lambda c: c.criterion)
-    return screened, tried, accepted
+    return screened, tried, accepted, baseline_row
