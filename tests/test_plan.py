@@ -183,7 +183,9 @@ def test_a_follow_up_spreads_each_parameter_by_what_the_first_test_left_open(
     information: PlanInformation,
 ) -> None:
     """After the paper's test, each parameter's half-width is twice its predicted precision,
-    capped where a parameter would reach zero: the friction (+-119 %) at 90 %."""
+    capped where a parameter would reach zero (at 90 %); after one short chirp the friction's
+    is capped. (The paper's test leaves the friction near the cap: +-119 % on one host, +-87 %
+    on another, the Coulomb term's finite differences following the floating point.)"""
     paper = [
         Design((5.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
         Design((10.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
@@ -191,9 +193,12 @@ def test_a_follow_up_spreads_each_parameter_by_what_the_first_test_left_open(
     widths = recorded_spread(information, paper)
     precision = predict(information, None, paper)
     assert set(widths) == set(DRIVETRAIN)
-    assert widths["Tc12"] == MAX_SPREAD
+    for name in DRIVETRAIN:
+        assert widths[name] == pytest.approx(min(SIGMAS * precision[name], MAX_SPREAD)), name
     for name in ("J1", "c12", "eps12"):
         assert widths[name] == pytest.approx(SIGMAS * precision[name])
+    short = [Design((5.0,), (1,), 30.0, 1.0, 15.0, validation_nm=0.0)]
+    assert recorded_spread(information, short)["Tc12"] == MAX_SPREAD
     assert recorded_spread(information, []) == {}
 
 

@@ -258,7 +258,7 @@ class Diagnosis:
             )
             return text + (
                 f"; no mechanism of the library explains it better than the drivetrain "
-                f"refitted alone (refitted with: {tried}), which explains the recordings "
+                f"refitted alone (tried: {tried}), which explains the recordings "
                 f"(largest deviation p = {refitted.found.global_p_value:.2g}): the "
                 f"identification ended short of the best fit, or a mechanism present is "
                 f"absorbed by {moved or 'the drivetrain parameters'}."
