@@ -72,7 +72,8 @@ class DrivetrainRefit:
     Attributes
     ----------
     parameters, before
-        The drivetrain refitted, and the identified one.
+        The drivetrain refitted, and the one the refits extended (the identified one, with
+        any engine-path gain K it was given).
     found
         Its mismatch map.
     nrmse
