@@ -161,15 +161,20 @@ def test_k_read_stroke_by_stroke_is_within_a_fraction_of_a_percent(name: str) ->
 def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
     """With the speed sensor adding up tooth times (``[sensors] speed_average = "times"``)
     vehicle_2's truth fits far better than with eq. (9)'s average of speeds (eq. 17 0.069
-    against 0.080), and the optimum nearest it lies within 2 % on all ten parameters (0.5-5.4 %
-    with eq. 9's sensor), at eq. 17 0.0638, as well as the best the default's search finds
-    (0.0639): these recordings' sensor is a tooth timer (docs/accuracy.md). The search's own
-    end is not asserted (at the default budget it ends in another basin, 0.0654)."""
-    tests, truth, _ = _vehicle("vehicle_2", speed_average="times")
+    against 0.080), the optimum nearest it lies within 2.5 % of it on all ten parameters (eq. 9's
+    up to 5.4-7.6 %) and fits at least as well as eq. (9)'s nearest optimum: these recordings'
+    sensor is a tooth timer (docs/accuracy.md). Where the local polish from the truth ends moves
+    with the machine's floating point (0.0638 against 0.0655 on one host, 0.0648 against 0.0650
+    on another), so the two sensors are compared on the same machine, not against a figure.
+    The search's own end is not asserted (at the default budget it ends in another basin)."""
     brief = SearchSettings(popsize=4, generations=1, polish_starts=1, scan_starts=1)
-    report = run_identification(tests, reference_parameters(), settings=brief, profile_points=0)
-    nearest = _nearest_the_truth(report, truth)
-    errors = {n: round(e, 4) for n, e in nearest.errors.items()}
+    at_truth, nearest = {}, {}
+    for average in ("times", "speeds"):
+        tests, truth, _ = _vehicle("vehicle_2", speed_average=average)
+        report = run_identification(tests, reference_parameters(), settings=brief, profile_points=0)
+        at_truth[average] = report.fit_objective(truth)
+        nearest[average] = _nearest_the_truth(report, truth)
+    assert at_truth["times"] < 0.9 * at_truth["speeds"], at_truth
+    errors = {n: round(e, 4) for n, e in nearest["times"].errors.items()}
     assert max(abs(e) for e in errors.values()) < 0.025, errors
-    assert report.fit_objective(truth) < 0.072
-    assert nearest.value < 0.0645
+    assert nearest["times"].value <= 1.01 * nearest["speeds"].value
