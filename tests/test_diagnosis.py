@@ -283,6 +283,27 @@ def test_amplitude_trend_reads_the_runs_effective_values():
         [effective(5, 352), effective(10, 345), effective(2, 250, "validation")]
     )
     assert agree == "the identifying runs agree on one value: the model's is off"
+    # a second stage engaged at both identifying amplitudes shows only in the smaller held-out
+    # run (a two-stage clutch: trial case 6 asked for c23 275 and 278 at 5 and 10 N*m, 171 or
+    # less at 2 N*m, against 274 identified)
+    stage = amplitude_trend(
+        [effective(5, 306), effective(10, 309), effective(2, 187.5, "validation", edge=True)]
+    )
+    assert stage.startswith(
+        "the identifying runs agree with the model's value, the held-out run at 2 N*m asks for "
+        "38% less at least: c12 grows with the amplitude beyond the identifying runs' reach, as "
+        "progressive_spring engaged"
+    ), stage
+    softer_above = amplitude_trend(  # softer at a larger amplitude: no second stage does that
+        [effective(5, 306), effective(10, 309), effective(20, 240, "validation")]
+    )
+    assert softer_above == (
+        "the identifying runs agree with the model's value, the held-out run at 20 N*m asks for "
+        "20% less"
+    )
+    assert amplitude_trend([effective(5, 306), effective(10, 309)]) == (
+        "the identifying runs agree with the model's value"
+    )
     assert amplitude_trend([effective(5, 330)]) == ""  # one identifying run says nothing
     assert amplitude_trend([effective(5, 330), effective(10, 480, edge=True)]) == ""
 
