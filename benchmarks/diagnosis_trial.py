@@ -19,7 +19,10 @@ refitted with it). The summary
 gives the issue's figures: among cases whose effect reaches 1.5 dB, the share named first
 correctly (and how many of them the identification absorbed: declared adequate, the mechanism
 listed as indistinguishable); clean cases declared adequate; the main parameter within 25 %;
-the held-out NRMSE's fall where an effect was accepted; and the confusion matrix.
+the held-out NRMSE's fall where an effect was accepted (the identification's |G_DRV| NRMSE,
+and each accepted step's own held-out measure, ``held_out_gain``: |G_DRV| NRMSE, |G_ENG| RMS z
+for an engine-path mechanism, the strokes' departure for a cylinder imbalance); and the
+confusion matrix.
 
     PYTHONPATH=. python benchmarks/diagnosis_trial.py --cases 12 [--first 1] [--clean 0.25]
     PYTHONPATH=. python benchmarks/diagnosis_trial.py --from-log run1.log run2.log  # summary
@@ -140,6 +143,10 @@ def run_case(index: int, clean: float) -> dict[str, object]:
     if diagnosis.accepted:
         last = diagnosis.accepted[-1]
         row["validation_after"] = sum(last.nrmse.get("validation", {}).values())
+        row["held_out_gain"] = [  # each accepted step's own held-out measure (Candidate)
+            {"mechanism": c.mechanisms[-1], "frf": c.frf, "gain": c.validation_gain}
+            for c in diagnosis.accepted
+        ]
         after = theta_from_parameters(last.drivetrain())
         row["error_after_percent"] = {  # the drivetrain refitted with the accepted mechanisms
             name: 100 * (after[name] / true_theta[name] - 1) for name in report.identification.theta
@@ -190,6 +197,10 @@ def summarise(cases: list[dict[str, object]]) -> dict[str, object]:
             1 - c["validation_after"] / c["validation_before"]  # type: ignore[operator]
             for c in accepted
             if c["validation_before"]  # none: the held-out run was refused
+        ],
+        "held_out_gain": [  # on the measure that tested each: |G_DRV|, |G_ENG| or strokes
+            [(g["mechanism"], g["frf"], g["gain"]) for g in c.get("held_out_gain", [])]  # type: ignore[union-attr]
+            for c in accepted
         ],
         "confusion": {t: {n: k for n, k in row.items() if k} for t, row in confusion.items()},
     }
