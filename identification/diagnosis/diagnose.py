@@ -274,6 +274,23 @@ class Diagnosis:
             text += f": {hint}"
         return text + "."
 
+    def strongest_hint(self) -> str:
+        """The parameter whose per-run values improve the fit most, as text ('' if none)."""
+        values = strongest(self.hints)
+        if not values:
+            return ""
+        per_run = ", ".join(
+            f"{h.effective:.4g}{' (edge)' if h.at_edge else ''} at {h.amplitude_nm:g} N*m"
+            f"{'' if h.role == 'fit' else ' (validation)'}"
+            for h in values
+        )
+        text = (
+            f"the runs ask for {values[0].name} = {per_run}, against "
+            f"{values[0].identified:.4g} identified"
+        )
+        trend = amplitude_trend(values)
+        return f"{text}; {trend}" if trend else text
+
     def as_dict(self) -> dict[str, object]:
         """The JSON document of ``dtid diagnose`` (docs/schemas/diagnosis.schema.json)."""
         bands = [band.as_dict() for band in self.mismatch.bands]
