@@ -112,7 +112,6 @@ def _nearest_the_truth(report: IdentificationReport, truth: DrivetrainParameters
     return Nearest(errors, value, par.parameters(unit[None]), model_tests, measured)
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("name", ["vehicle_1", "vehicle_2"])
 def test_independent_vehicle(name: str) -> None:
     tests, truth, _ = _vehicle(name)
@@ -157,7 +156,6 @@ def test_k_read_stroke_by_stroke_is_within_a_fraction_of_a_percent(name: str) ->
     assert abs(eq24 / true_k - 1) > 0.004
 
 
-@pytest.mark.slow
 def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
     """With the speed sensor adding up tooth times (``[sensors] speed_average = "times"``)
     vehicle_2's truth fits far better than with eq. (9)'s average of speeds (eq. 17 0.069

@@ -12,6 +12,7 @@ from dtid.cli import main as dtid
 from dtid.errors import ConfigError
 from dtid.simulator.controller import IdleController
 from dtid.simulator.couplings import second_stage_torque
+from dtid.simulator.kernel import _torques
 from dtid.simulator.mechanisms import (
     EXTRA_INDEX,
     KERNEL_WIDTH,
@@ -104,6 +105,76 @@ def test_second_stage_adds_its_stiffness_beyond_the_knee():
     assert second_stage_torque(0.010, 600.0, 0.008) == pytest.approx(600.0 * 0.002)
     assert second_stage_torque(-0.010, 600.0, 0.008) == pytest.approx(-600.0 * 0.002)
     assert second_stage_torque(0.5, 0.0, 0.008) == 0.0
+
+
+def dmf_torque(
+    delta12: float,
+    rate12: float = 0.0,
+    *,
+    c12: float = 300.0,
+    half12: float = 0.01,
+    asym12: float = 0.0,
+    c12_2: float = 0.0,
+    knee12: float = 0.0,
+    d12_2: float = 0.0,
+) -> float:
+    """The DMF torque of the kernel's force law, N*m: J2's smooth torque with the gear coupling
+    and the belt absent and no viscous damping."""
+    dmf = (c12, 0.0, half12, asym12 * half12, c12_2, knee12, d12_2)
+    rest = (0.0,) * 8  # c23, d23, half23, c23_2, knee23, d3, c14, d14
+    return _torques(0.0, delta12, 0.0, 0.0, 0.0, rate12, 0.0, 0.0, 0.0, (*dmf, *rest))[1]
+
+
+def test_asymmetric_play_moves_the_stops_and_keeps_the_total_width():
+    """asym12 = 0.5 with eps12/2 = 0.01 rad: the drive stop at 0.015 rad, the coast stop at
+    -0.005 rad (widths 0.01 (1 +- 0.5)); beyond each the arc spring's c12 times the overshoot."""
+    assert dmf_torque(0.0149, asym12=0.5) == 0.0
+    assert dmf_torque(0.020, asym12=0.5) == pytest.approx(300.0 * 0.005)
+    assert dmf_torque(-0.0049, asym12=0.5) == 0.0
+    assert dmf_torque(-0.010, asym12=0.5) == pytest.approx(-300.0 * 0.005)
+    assert dmf_torque(-0.010, asym12=-0.5) == 0.0  # mirrored: the coast side is the wide one
+    assert dmf_torque(0.020, asym12=0.0) == pytest.approx(300.0 * 0.010)
+
+
+def test_progressive_spring_adds_its_stage_beyond_play_and_knee_on_both_sides():
+    """Play 0.01 rad each side, knee 0.008 rad beyond it: at 0.03 rad the first stage carries
+    c12 * 0.02 and the second c12_2 * 0.012; inside the knee the second stage is absent."""
+    stage = {"c12_2": 600.0, "knee12": 0.008}
+    assert dmf_torque(0.03, **stage) == pytest.approx(300.0 * 0.02 + 600.0 * 0.012)
+    assert dmf_torque(-0.03, **stage) == pytest.approx(-(300.0 * 0.02 + 600.0 * 0.012))
+    assert dmf_torque(0.017, **stage) == pytest.approx(300.0 * 0.007)
+    with_asym = dmf_torque(0.035, asym12=0.5, **stage)  # the stage counts from the moved stop
+    assert with_asym == pytest.approx(300.0 * 0.02 + 600.0 * 0.012)
+
+
+def test_quadratic_damping_adds_the_square_of_the_relative_speed_against_it():
+    """d12_2 * w12 * |w12| at 4 rad/s with d12_2 = 1.5: 24 N*m, opposing the motion."""
+    assert dmf_torque(0.0, 4.0, d12_2=1.5) == pytest.approx(24.0)
+    assert dmf_torque(0.0, -4.0, d12_2=1.5) == pytest.approx(-24.0)
+    assert dmf_torque(0.0, 4.0) == 0.0
+
+
+def test_friction_hysteresis_is_the_plain_friction_short_of_its_angle_and_the_sum_beyond(
+    reference,
+):
+    """A friction ring that never engages (phi12_f beyond the test's largest deflection, 0.054
+    rad) leaves the plant bit for bit; one engaged at every deflection (phi12_f = 0) is a DMF
+    friction of Tc12 + Tc12_2 (but at delta12 = 0 exactly, where it is not beyond: within 1 %
+    of the ring's effect); in between, the later the ring engages the less it changes."""
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=6.0)
+    plain = run(reference, plan)
+
+    def change(result) -> float:
+        return float(np.sqrt(np.mean((result.speed_rpm - plain.speed_rpm) ** 2)))
+
+    assert np.abs(plain.delta12_rad).max() < 0.1
+    never = run(reference, plan, Tc12_2=3.0, phi12_f=0.1)
+    np.testing.assert_array_equal(never.speed_rpm, plain.speed_rpm)
+    always = run(reference, plan, Tc12_2=3.0, phi12_f=0.0)
+    summed = run(reference.replace(Tc12=reference.Tc12 + 3.0), plan)
+    assert np.sqrt(np.mean((always.speed_rpm - summed.speed_rpm) ** 2)) < 0.01 * change(always)
+    later = [change(run(reference, plan, Tc12_2=3.0, phi12_f=f)) for f in (0.01, 0.02, 0.04)]
+    assert change(always) > later[0] > later[1] > later[2] > 0.0
 
 
 def test_torque_lag_filters_the_delivered_torque_stroke_by_stroke(reference):

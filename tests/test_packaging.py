@@ -8,8 +8,6 @@ import sys
 import zipfile
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).parents[1]
 INSTALLED_AS = {
     "api": "dtid",
@@ -22,7 +20,6 @@ INSTALLED_AS = {
 """Each source folder and where its files land in site-packages (pyproject's package-dir)."""
 
 
-@pytest.mark.slow
 def test_wheel_holds_all_packages_and_data(tmp_path: Path) -> None:
     subprocess.run(
         [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path), str(ROOT)],
