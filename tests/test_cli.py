@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import pytest
+from conftest import HELD
 from json_schemas import validate
 
 from dtid.cli import main
@@ -57,6 +58,29 @@ def test_frf_json_and_plot(recording: Path, tmp_path: Path) -> None:
         n = len(entry["frequency_hz"])
         assert n > 10 and len(entry["drv_db"]) == n == len(entry["coherence"])
     assert plot.stat().st_size > 10_000
+
+
+def test_identify_names_an_engine_that_lags_its_request(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A concealed 60 ms torque lag: each identifying run's T/T_ecu gives it back within 15 %
+    (`engine_lag` in the JSON), and the log says what it does to eq. (24)'s K and the
+    drivetrain and that `dtid diagnose` fits it."""
+    recording, out = tmp_path / "lagging.blf", tmp_path / "identify.json"
+    assert main(["simulate", str(recording), *SHORT, "--effect", "torque_lag:tau_m=0.06"]) == 0
+    fix = [*HELD, "eps12=0.02", "c12=300", "d12=1.0"]
+    argv = ["identify", str(recording), "--fix", *fix, "--profile-points", "0"]
+    with caplog.at_level("WARNING"):
+        assert main([*argv, "--json", str(out)]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "identification")
+    lags = [lag for runs in document["engine_lag"].values() for lag in runs]
+    assert len(lags) == 2 and all(lag is not None for lag in lags), lags
+    for lag in lags:
+        assert lag["tau_s"] == pytest.approx(0.06, rel=0.15)
+        assert lag["gain"] == pytest.approx(0.9, rel=0.1)
+    assert "the engine lags its torque request" in caplog.text
+    assert "dtid diagnose` fits the lag" in caplog.text
 
 
 def test_simulate_never_overwrites_a_recording(
@@ -211,6 +235,8 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
         value is None or 150 <= value <= 450 for value in document["intervals"]["c12"].values()
     )
     assert document["identifiability_notes"] == {}  # two amplitudes separate c12 from eps12
+    # the simulator's engine delivers its request without a lag: none is named
+    assert [lag for lags in document["engine_lag"].values() for lag in lags] == [None, None]
     names = {"J_sum", "x1", "x12", "c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23"}
     assert set(document["parameters"]) == names | {"J1", "J2", "J3", "K"}
     assert set(document["intervals"]) == {"c12", "d12"}  # the free ones
