@@ -593,6 +593,14 @@ def identify_runs(
     if span is None:  # the prior's +-100 % and a passenger car's range
         bounds = {**passenger_car_bounds(prior), **(bounds or {})}
         span = PRIOR_SPAN
+    lagging = [
+        (test.name, estimate, lag)
+        for test, runs in zip(tests, ident, strict=True)
+        for estimate, lag in ((test.estimates[i], test.estimates[i].engine_lag) for i in runs)
+        if lag is not None
+    ]
+    if lagging:
+        logger.warning("%s", lag_warning(lagging, gain, measured="K" not in operating))
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds, span=span)
     starts = start_thetas(selection.estimates(), prior)
     settings = settings or SearchSettings()
@@ -605,14 +613,6 @@ def identify_runs(
     )
     for reason in dict.fromkeys(reasons.values()):  # once per coupling
         logger.warning("not identifiable from these data: %s", reason)
-    lagging = [
-        (test.name, estimate, lag)
-        for test, runs in zip(tests, ident, strict=True)
-        for estimate, lag in ((test.estimates[i], test.estimates[i].engine_lag) for i in runs)
-        if lag is not None
-    ]
-    if lagging:
-        logger.warning("%s", lag_warning(lagging, gain))
     profiles: dict[str, Profile] = {}
     if profile_points:
         measured_db = [e.drv_db for e in selection.estimates()]
@@ -671,7 +671,9 @@ def identify_runs(
     )
 
 
-def lag_warning(lagging: Sequence[tuple[str, FrfEstimate, EngineLag]], gain: float) -> str:
+def lag_warning(
+    lagging: Sequence[tuple[str, FrfEstimate, EngineLag]], gain: float, measured: bool = True
+) -> str:
     """What an engine lagging its request does to the identification, for the log.
 
     The model's engine delivers K times the request each stroke without a lag; eq. (24) reads
@@ -684,15 +686,22 @@ def lag_warning(lagging: Sequence[tuple[str, FrfEstimate, EngineLag]], gain: flo
     lagging
         (recording, run, its lag) of each identifying run that shows one.
     gain
-        Eq. (24)'s K the identification uses, 1.
+        The K the identification uses, 1.
+    measured
+        Whether that K is eq. (24)'s (False: fixed by the user).
     """
     runs = "; ".join(
         f"{name} at {estimate.run.amplitude_nm:g} N*m: {lag.tau_s:.3f} s, K {lag.gain:.2f}"
         for name, estimate, lag in lagging
     )
+    gain_text = (
+        f"eq. (24)'s K {gain:.3f} averages |G_ENG| over the band, which the lag lowers, and "
+        if measured
+        else f"with K fixed at {gain:.3f}, "
+    )
     return (
-        f"the engine lags its torque request (T/T_ecu as a first-order lag: {runs}): eq. (24)'s "
-        f"K {gain:.3f} averages |G_ENG| over the band, which the lag lowers, and the model's "
-        "engine, which delivers the request without a lag, bends the drivetrain to make up for "
-        "it; `dtid diagnose` fits the lag (torque_lag) and refits K and the drivetrain with it"
+        f"the engine lags its torque request (T/T_ecu as a first-order lag: {runs}): "
+        f"{gain_text}the model's engine, which delivers the request without a lag, bends the "
+        "drivetrain to make up for it; `dtid diagnose` fits the lag (torque_lag) and refits K "
+        "and the drivetrain with it"
     )
