@@ -578,7 +578,7 @@ def identify_runs(
     gain = (
         operating["K"]
         if "K" in operating
-        else engine_gain(
+        else model_gain(
             [
                 dataclasses.replace(t, estimates=tuple(t.estimates[i] for i in runs))
                 for t, runs in zip(tests, ident, strict=True)
@@ -594,13 +594,14 @@ def identify_runs(
         bounds = {**passenger_car_bounds(prior), **(bounds or {})}
         span = PRIOR_SPAN
     lagging = [
-        (test.name, estimate, lag)
+        (test, estimate, lag)
         for test, runs in zip(tests, ident, strict=True)
         for estimate, lag in ((test.estimates[i], test.estimates[i].engine_lag) for i in runs)
         if lag is not None
     ]
     if lagging:
-        logger.warning("%s", lag_warning(lagging, gain, measured="K" not in operating))
+        modelled = all(t.loop.lag_s > 0 for t, _, _ in lagging)
+        logger.warning("%s", lag_warning(lagging, gain, "K" not in operating, modelled))
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds, span=span)
     starts = start_thetas(selection.estimates(), prior)
     settings = settings or SearchSettings()
@@ -671,12 +672,29 @@ def identify_runs(
     )
 
 
+def model_gain(tests: Sequence[MeasuredTest]) -> float:
+    """K for the model: eq. (24) (:func:`dtid.identification.search.identify.engine_gain`),
+    but read stroke by stroke through the lag for a recording whose model engine lags
+    (``[model] engine_lag = "measured"``): a lag lowers |G_ENG|'s mean, which eq. (24) takes
+    for K (0.40-0.57 for 0.91-0.96 on the blind trial's lagging engines)."""
+    lagged = [t for t in tests if t.loop.lag_s > 0]
+    if not lagged:
+        return engine_gain(tests)
+    gains = [t.loop.engine_gain()[0] for t in lagged]
+    prompt = [t for t in tests if t.loop.lag_s <= 0 and t.loop.by_request]
+    return float(np.mean(gains + ([engine_gain(prompt)] if prompt else [])))
+
+
 def lag_warning(
-    lagging: Sequence[tuple[str, FrfEstimate, EngineLag]], gain: float, measured: bool = True
+    lagging: Sequence[tuple[MeasuredTest, FrfEstimate, EngineLag]],
+    gain: float,
+    measured: bool = True,
+    modelled: bool = False,
 ) -> str:
     """What an engine lagging its request does to the identification, for the log.
 
-    The model's engine delivers K times the request each stroke without a lag; eq. (24) reads
+    The model's engine delivers K times the request each stroke without a lag unless the
+    vehicle data ask for the lag measured (``[model] engine_lag = "measured"``); eq. (24) reads
     K as |G_ENG|'s mean, which a lag lowers, and the drivetrain is bent to make up for the
     torque missing near its resonances (blind-trial case 12, a 61 ms lag: eq. 24's K 0.42-0.57
     for 0.96, c23 +30 %, d12 -92 %, d23 +109 %, the friction +632 %).
@@ -688,20 +706,32 @@ def lag_warning(
     gain
         The K the identification uses, 1.
     measured
-        Whether that K is eq. (24)'s (False: fixed by the user).
+        Whether that K is the product's (False: fixed by the user).
+    modelled
+        Whether the model's engine lags as measured.
     """
     runs = "; ".join(
-        f"{name} at {estimate.run.amplitude_nm:g} N*m: {lag.tau_s:.3f} s, K {lag.gain:.2f}"
-        for name, estimate, lag in lagging
+        f"{test.name} at {estimate.run.amplitude_nm:g} N*m: {lag.tau_s:.3f} s, K {lag.gain:.2f}"
+        for test, estimate, lag in lagging
     )
+    head = f"the engine lags its torque request (T/T_ecu as a first-order lag: {runs})"
+    if modelled:
+        return (
+            f'{head}: the model\'s engine lags as measured ([model] engine_lag = "measured"), '
+            + (
+                f"with K {gain:.3f} read stroke by stroke through the lag"
+                if measured
+                else f"with K fixed at {gain:.3f}"
+            )
+        )
     gain_text = (
         f"eq. (24)'s K {gain:.3f} averages |G_ENG| over the band, which the lag lowers, and "
         if measured
         else f"with K fixed at {gain:.3f}, "
     )
     return (
-        f"the engine lags its torque request (T/T_ecu as a first-order lag: {runs}): "
-        f"{gain_text}the model's engine, which delivers the request without a lag, bends the "
-        "drivetrain to make up for it; `dtid diagnose` fits the lag (torque_lag) and refits K "
-        "and the drivetrain with it"
+        f"{head}: {gain_text}the model's engine, which delivers the request without a lag, "
+        "bends the drivetrain to make up for it; `dtid diagnose` fits the lag (torque_lag) and "
+        "refits K and the drivetrain with it, or give the vehicle file [model] engine_lag = "
+        '"measured"'
     )

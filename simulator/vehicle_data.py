@@ -22,6 +22,13 @@ Recordings of a real vehicle come from a continuous plant; recordings simulated 
 paper's model (as ``../shared/independent`` evidently are) from a discrete one
 (docs/model-assumptions.md).
 
+``engine_lag`` says whether the model's engine delivers the request at once (``"none"``, the
+default, the paper's eq. 3) or through the lag measured on the recording's runs
+(``"measured"``: T/T_ecu fitted as the ``torque_lag`` mechanism, ``closed_loop.engine_lag``),
+which then also enters the strokes' K, combustion variation and sensor noise
+(:func:`dtid.identification.model.idle_loop.idle_loop`). A recording with no lag is modelled
+alike either way.
+
 A vehicle file is TOML. Its ``[engine]`` table holds any of the keys below, named as in the
 paper (eqs. 4-5); a key not given keeps the reference engine's value; its ``[sensors]`` table
 may give ``speed_average``, its ``[model]`` table ``integration``. Other tables (a
@@ -44,6 +51,7 @@ the truths of a simulated vehicle) are not read here::
 
     [model]
     integration = "euler"        # "euler" (eq. 8's discrete model, the default) or "verlet"
+    engine_lag = "none"          # "none" (the default) or "measured"
 """
 
 from __future__ import annotations
@@ -58,6 +66,9 @@ from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.engine import EngineGeometry
 from dtid.simulator.kernel import INTEGRATION
 from dtid.simulator.parameters import VEHICLE_TABLES, read_toml
+
+ENGINE_LAG = ("none", "measured")
+"""The ``[model] engine_lag`` choices (see the module notes)."""
 
 ENGINE_KEYS: dict[str, tuple[str, str]] = {
     "bore": ("bore_m", "m"),
@@ -88,6 +99,9 @@ class VehicleData:
         The file, or ``"reference engine"``.
     integration
         How the model integrates eq. (6), ``"euler"`` or ``"verlet"`` (see the module notes).
+    engine_lag
+        ``"none"`` or ``"measured"``: whether the model's engine lags its request as measured
+        (see the module notes).
     """
 
     engine: EngineGeometry = dataclasses.field(default_factory=EngineGeometry)
@@ -95,6 +109,7 @@ class VehicleData:
     given: tuple[str, ...] = ()
     source: str = "reference engine"
     integration: str = "euler"
+    engine_lag: str = "none"
 
     def describe(self) -> str:
         """One line on where the vehicle data come from."""
@@ -108,7 +123,7 @@ class VehicleData:
         return {
             "engine": {key: getattr(self.engine, field) for key, (field, _) in ENGINE_KEYS.items()},
             "sensors": {"speed_average": self.speed_average},
-            "model": {"integration": self.integration},
+            "model": {"integration": self.integration, "engine_lag": self.engine_lag},
         }
 
 
@@ -136,12 +151,17 @@ def load_vehicle_data(path: str | Path) -> VehicleData:
     if unknown or average not in ("speeds", "times"):
         raise ConfigError(f'{path}: [sensors] takes speed_average = "speeds" or "times" only')
     integration = model.get("integration", "euler")
-    if [key for key in model if key != "integration"] or integration not in INTEGRATION:
+    lag = model.get("engine_lag", "none")
+    unknown = [key for key in model if key not in ("integration", "engine_lag")]
+    if unknown or integration not in INTEGRATION or lag not in ENGINE_LAG:
         names = " or ".join(f'"{name}"' for name in INTEGRATION)
-        raise ConfigError(f"{path}: [model] takes integration = {names} only")
+        lags = " or ".join(f'"{name}"' for name in ENGINE_LAG)
+        raise ConfigError(
+            f"{path}: [model] takes integration = {names} and engine_lag = {lags} only"
+        )
     given = tuple(k for k in table if k in ENGINE_KEYS) + tuple(sensors) + tuple(model)
     engine = parse_engine(table, str(path))
-    return VehicleData(engine, average, given, str(path), integration)
+    return VehicleData(engine, average, given, str(path), integration, lag)
 
 
 def parse_engine(table: dict[str, object], source: str) -> EngineGeometry:

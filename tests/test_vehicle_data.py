@@ -46,7 +46,7 @@ def test_given_keys_replace_the_reference_engines(tmp_path: Path) -> None:
     assert data.as_dict()["sensors"] == {"speed_average": "times"}
     assert "bore, r, l, eps_c, speed_average from" in data.describe()
     assert data.integration == "euler"  # eq. (8)'s discrete model unless [model] says otherwise
-    assert data.as_dict()["model"] == {"integration": "euler"}
+    assert data.as_dict()["model"] == {"integration": "euler", "engine_lag": "none"}
 
 
 def test_the_model_table_chooses_the_integration(tmp_path: Path) -> None:
@@ -67,6 +67,7 @@ def test_the_model_table_chooses_the_integration(tmp_path: Path) -> None:
         ("[drivetrain]\nJ1 = 0.1\n", "has no \\[engine\\] table"),
         ("[sensors]\nspeed_average = 'mean'\n", "speeds.* or .*times"),
         ("[model]\nintegration = 'rk4'\n", "euler.* or .*verlet"),
+        ("[model]\nengine_lag = 'yes'\n", "engine_lag = .*none.* or .*measured"),
         ("[engine\n", "not valid TOML"),
     ],
 )

@@ -18,8 +18,9 @@ def add_vehicle_option(parser: argparse.ArgumentParser) -> None:
         type=Path,
         help="vehicle file (TOML): [engine] gives the crank-train data the model engine needs, "
         "[sensors] the speed sensor's arithmetic, [model] integration = \"euler\" (eq. 8's "
-        'discrete model) or "verlet" (a continuous plant) (default: the reference\'s and '
-        "euler; see docs/model-assumptions.md)",
+        'discrete model) or "verlet" (a continuous plant) and engine_lag = "none" or '
+        "\"measured\" (the model's engine lags as the runs' T/T_ecu shows) (default: the "
+        "reference's, euler and none; see docs/model-assumptions.md)",
     )
 
 

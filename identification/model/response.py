@@ -60,7 +60,7 @@ from dtid.identification.frf.closed_loop import (
 from dtid.identification.model.idle_loop import SAMPLES_PER_STROKE, IdleLoop
 from dtid.identification.samples.testdata import Series
 from dtid.simulator.controller import IdleController
-from dtid.simulator.mechanisms import EXTRA_INDEX, KERNEL_WIDTH
+from dtid.simulator.mechanisms import EXTRA_INDEX, KERNEL_WIDTH, kernel_parameters
 from dtid.simulator.parameters import INDEX
 from dtid.simulator.simulate import BatchResult, SimulationOptions, replay_batch
 from dtid.simulator.vehicle_data import VehicleData
@@ -220,8 +220,17 @@ class ModelTest:
     def model_parameters(self, params: np.ndarray) -> np.ndarray:
         """The parameter sets as the model simulates them: with K = 1 where the drive is the
         measured torque, which already holds the engine's gain (1/g_T with a torque-sensor gain:
-        the drive is then g_T times the torque delivered), its lag and its cylinders' spread."""
-        if self.loop is None or self.loop.by_request:
+        the drive is then g_T times the torque delivered), its lag and its cylinders' spread;
+        with the recording's measured engine lag where the request drives it and the sets give
+        none (``[model] engine_lag = "measured"``: :attr:`IdleLoop.lag_s`)."""
+        if self.loop is None:
+            return params
+        if self.loop.by_request:
+            if self.loop.lag_s <= 0:
+                return params
+            params = kernel_parameters(params).copy()
+            lagless = params[:, EXTRA_INDEX["tau_m"]] <= 0
+            params[lagless, EXTRA_INDEX["tau_m"]] = self.loop.lag_s
             return params
         params = params.copy()
         params[:, INDEX["K"]] = 1.0

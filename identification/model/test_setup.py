@@ -100,7 +100,8 @@ class MeasuredTest:
                 f"{name}: fewer than 10 mean-torque samples at idle outside the chirps; the loss "
                 "torque T_loss cannot be measured (record a few seconds of idle before the test)"
             )
-        loop = idle_loop(data)
+        vehicle = vehicle or VehicleData()
+        loop = idle_loop(data, measured_lag(estimates) if vehicle.engine_lag == "measured" else 0.0)
         separated = loop.by_request and np.isfinite(loop.combustion_variation)
         return cls(
             name,
@@ -111,7 +112,7 @@ class MeasuredTest:
             loop.combustion_variation if separated else stroke_variation(torque),
             loop,
             tuple(unusable),
-            vehicle or VehicleData(),
+            vehicle,
         )
 
     def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
@@ -127,6 +128,13 @@ class MeasuredTest:
             combustion_variation=self.combustion_variation,
             **extra,
         )
+
+
+def measured_lag(estimates: Sequence[FrfEstimate]) -> float:
+    """The engine's lag behind its request, s: the median over the runs whose T/T_ecu shows one
+    (:attr:`dtid.identification.frf.closed_loop.FrfEstimate.engine_lag`); 0 where none does."""
+    lags = [lag.tau_s for e in estimates if (lag := e.engine_lag) is not None]
+    return float(np.median(lags)) if lags else 0.0
 
 
 def _time_mean(speed: Series) -> float:
