@@ -674,13 +674,15 @@ def identify_runs(
 
 def model_gain(tests: Sequence[MeasuredTest]) -> float:
     """K for the model: eq. (24) (:func:`dtid.identification.search.identify.engine_gain`),
-    but read stroke by stroke through the lag for a recording whose model engine lags
-    (``[model] engine_lag = "measured"``): a lag lowers |G_ENG|'s mean, which eq. (24) takes
-    for K (0.40-0.57 for 0.91-0.96 on the blind trial's lagging engines)."""
+    but read stroke by stroke through the lag, over the runs given, for a recording whose model
+    engine lags (``[model] engine_lag = "measured"``): a lag lowers |G_ENG|'s mean, which eq.
+    (24) takes for K (0.40-0.57 for 0.91-0.96 on the blind trial's lagging engines)."""
     lagged = [t for t in tests if t.loop.lag_s > 0]
     if not lagged:
         return engine_gain(tests)
-    gains = [t.loop.engine_gain()[0] for t in lagged]
+    gains = [
+        t.loop.engine_gain([(e.run.start_s, e.run.end_s) for e in t.estimates])[0] for t in lagged
+    ]
     prompt = [t for t in tests if t.loop.lag_s <= 0 and t.loop.by_request]
     return float(np.mean(gains + ([engine_gain(prompt)] if prompt else [])))
 
