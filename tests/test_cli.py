@@ -88,7 +88,7 @@ def test_a_measured_engine_lag_in_the_model_halves_the_misfit(tmp_path: Path) ->
     the model's engine prompt (the default) eq. (24) reads K 0.61 for 0.9 and the fit ends at
     eq. 17 0.17; with ``[model] engine_lag = "measured"`` the model's engine lags as the runs'
     T/T_ecu measured it, K is read stroke by stroke through the lag, eq. 17 falls to 0.09 and
-    c12, d12 and eps12 land within 3 % of the truth (measured: -0.5, +2.7, +0.5 %)."""
+    c12, d12 and eps12 land within 3 % of the truth (measured: -0.2, +2.0, +0.8 %)."""
     recording = tmp_path / "lagging.blf"
     command = ["simulate", str(recording), "--amplitudes", "5", "10", "--duration", "60"]
     assert main([*command, "--seed", "2", "--effect", "torque_lag:tau_m=0.03"]) == 0
