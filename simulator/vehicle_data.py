@@ -31,8 +31,9 @@ alike either way.
 
 A vehicle file is TOML. Its ``[engine]`` table holds any of the keys below, named as in the
 paper (eqs. 4-5); a key not given keeps the reference engine's value; its ``[sensors]`` table
-may give ``speed_average``, its ``[model]`` table ``integration``. Other tables (a
-``[drivetrain]`` table, which ``--prior`` reads (:func:`dtid.simulator.parameters.load_parameters`),
+may give ``speed_average``, its ``[model]`` table ``integration`` and ``engine_lag``. Other
+tables (a ``[drivetrain]`` table, which ``--prior`` reads
+(:func:`dtid.simulator.parameters.load_parameters`),
 the truths of a simulated vehicle) are not read here::
 
     [engine]
