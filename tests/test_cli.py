@@ -61,7 +61,7 @@ def test_frf_json_and_plot(recording: Path, tmp_path: Path) -> None:
 
 
 def test_identify_names_an_engine_that_lags_its_request(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """A concealed 60 ms torque lag: each identifying run's T/T_ecu gives it back within 15 %
     (`engine_lag` in the JSON), and the log says what it does to eq. (24)'s K and the
@@ -81,6 +81,12 @@ def test_identify_names_an_engine_that_lags_its_request(
         assert lag["gain"] == pytest.approx(0.9, rel=0.1)
     assert "the engine lags its torque request" in caplog.text
     assert "dtid diagnose` fits the lag" in caplog.text
+    frf = tmp_path / "frf.json"  # the FRF's own page says it per run too
+    assert main(["frf", str(recording), "--json", str(frf)]) == 0
+    assert "engine lag 0.0" in capsys.readouterr().out
+    runs = json.loads(frf.read_text())["runs"]
+    validate({"runs": runs}, "frf")
+    assert [run["engine_lag"]["tau_s"] for run in runs] == pytest.approx([0.06, 0.06], rel=0.15)
 
 
 def test_a_measured_engine_lag_in_the_model_halves_the_misfit(tmp_path: Path) -> None:

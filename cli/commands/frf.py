@@ -58,19 +58,21 @@ def estimate_all(
 
 
 def summary_line(estimate: FrfEstimate) -> str:
-    """One line per run: amplitude, strongest resonance, K and the share of coherent bins.
+    """One line per run: amplitude, strongest resonance, K, the share of coherent bins and the
+    engine's lag behind its request where T/T_ecu shows one.
 
     The resonance is the peak of |G_DRV| * omega (the response with the rigid-body 1/(J s)
     taken out), which is the DMF mode for a passenger-car drivetrain at idle.
     """
     f, db = estimate.frequency_hz, estimate.drv_db
     peak = int(np.argmax(db + 20 * np.log10(f)))
-    gain = estimate.engine_gain
+    gain, lag = estimate.engine_gain, estimate.engine_lag
     return (
         f"A = {estimate.run.amplitude_nm:5.2f} N*m  {estimate.run.start_s:7.1f} s  "
         f"resonance {f[peak]:5.2f} Hz ({db[peak]:6.1f} dB)  "
         f"K = {'-' if np.isnan(gain) else f'{gain:.3f}'}  "
         f"coherence > 0.9 in {np.mean(estimate.coherence > 0.9):.0%} of bins"
+        + ("" if lag is None else f"  engine lag {lag.tau_s:.3f} s (K {lag.gain:.3f})")
     )
 
 

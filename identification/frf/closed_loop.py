@@ -129,7 +129,7 @@ class FrfEstimate:
         return engine_lag(self.frequency_hz, ratio, coherence, self.speed_rpm)
 
     def as_dict(self) -> dict[str, object]:
-        """JSON-ready entry: the run, the grid and the magnitudes in dB."""
+        """JSON-ready entry: the run, the grid, the magnitudes in dB and the engine's lag."""
         return {
             "amplitude_nm": self.run.amplitude_nm,
             "start_s": self.run.start_s,
@@ -142,6 +142,7 @@ class FrfEstimate:
             "drv_db": self.drv_db.tolist(),
             "eng_db": None if np.all(np.isnan(self.eng)) else self.eng_db.tolist(),
             "coherence": self.coherence.tolist(),
+            "engine_lag": None if (lag := self.engine_lag) is None else lag.as_dict(),
         }
 
 
