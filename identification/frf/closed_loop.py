@@ -21,6 +21,7 @@ and the coherence, the smaller of the z-x and z-y coherences (both paths must be
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy import interpolate, ndimage, optimize, signal
@@ -90,8 +91,8 @@ class FrfEstimate:
     sample_rate_hz: float
     n_events: int
     nperseg: int
-    eng_phase: np.ndarray | None = None
-    torque_coherence: np.ndarray | None = None
+    eng_phase: np.ndarray
+    torque_coherence: np.ndarray
 
     @property
     def drv_db(self) -> np.ndarray:
@@ -118,15 +119,13 @@ class FrfEstimate:
         trusted = self.coherence >= GAIN_COHERENCE
         return float(np.mean(self.eng[trusted] if trusted.any() else self.eng))
 
-    @property
+    @cached_property
     def engine_lag(self) -> EngineLag | None:
-        """The engine's lag behind its request fitted to this run's T/T_ecu
-        (:func:`engine_lag`); None without a torque request or without a lag."""
-        if self.eng_phase is None or not np.isfinite(self.eng_phase).any():
-            return None
-        ratio = self.eng * np.exp(1j * self.eng_phase)
-        coherence = self.coherence if self.torque_coherence is None else self.torque_coherence
-        return engine_lag(self.frequency_hz, ratio, coherence, self.speed_rpm)
+        """The engine's lag behind its request fitted to this run's T/T_ecu, fitted once
+        (:func:`run_lag`); None without a torque request or without a lag."""
+        return run_lag(
+            self.frequency_hz, self.eng, self.eng_phase, self.torque_coherence, self.speed_rpm
+        )
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready entry: the run, the grid, the magnitudes in dB and the engine's lag."""
@@ -268,21 +267,24 @@ def estimate_frf(
         s_uu = signal.welch(u, **welch)[1][keep]
         request_coherence = np.abs(s_zu[keep]) ** 2 / (s_zz * s_uu)
         eng = engine_magnitude(f, s_zx, s_zu[keep], speed_rpm)
+        phase = np.angle(s_zx / s_zu[keep])  # the hold's gain is real: it keeps the phase
         req = request_magnitude(f, s_zy, s_zu[keep], speed_rpm)
-        ratio = s_zx / s_zu[keep] / torque_hold_gain(f, speed_rpm)
     else:
-        eng = req = np.full_like(f, np.nan)
-        ratio = None
+        eng = req = phase = np.full_like(f, np.nan)
     median_coherence = float(np.median(coherence))
     if median_coherence < MIN_MEDIAN_COHERENCE:
         raise AnalysisError(
             f"the chirp run at {run.start_s:.1f}-{run.end_s:.1f} s has a median coherence of "
             f"{median_coherence:.2f} over {lo:.2f}-{hi:.2f} Hz (at least "
             f"{MIN_MEDIAN_COHERENCE} expected): "
-            + incoherence_cause(f, torque_coherence, request_coherence, ratio, speed_rpm)
+            + incoherence_cause(
+                f,
+                torque_coherence,
+                request_coherence,
+                run_lag(f, eng, phase, torque_coherence, speed_rpm),
+            )
         )
     drv = drivetrain_magnitude(f, s_zy, s_zx, speed_rpm)
-    phase = np.full_like(f, np.nan) if ratio is None else np.angle(ratio)
     return FrfEstimate(
         run,
         f,
@@ -470,12 +472,25 @@ def engine_lag(
     return EngineLag(tau, tau_sd, gain, delay, stroke, band)
 
 
+def run_lag(
+    frequency_hz: np.ndarray,
+    eng: np.ndarray,
+    phase: np.ndarray,
+    coherence: np.ndarray,
+    speed_rpm: float,
+) -> EngineLag | None:
+    """:func:`engine_lag` of a run from |G_ENG| and the phase of S_zx / S_zu (T/T_ecu); None
+    without a torque request (NaN phase)."""
+    if not np.isfinite(phase).any():
+        return None
+    return engine_lag(frequency_hz, eng * np.exp(1j * phase), coherence, speed_rpm)
+
+
 def incoherence_cause(
     frequency_hz: np.ndarray,
     torque: np.ndarray,
     request: np.ndarray | None,
-    ratio: np.ndarray | None = None,
-    speed_rpm: float = 0.0,
+    lag: EngineLag | None = None,
 ) -> str:
     """Why a run's FRF would be noise, as the refusal's text.
 
@@ -497,10 +512,9 @@ def incoherence_cause(
         Coherence of the measured mean torque with the test torque per bin.
     request
         Coherence of the torque request with the test torque per bin (None: not on the bus).
-    ratio
-        S_zx / S_zu per bin (:func:`engine_lag`; None: no torque request on the bus).
-    speed_rpm
-        The run's mean speed, rpm (for the lag's stroke).
+    lag
+        The run's lag fitted where the torque is coherent (:func:`run_lag`; None: none, or no
+        torque request on the bus).
     """
     thirds = np.array_split(np.arange(len(frequency_hz)), 3)
     low, high = (float(np.median(torque[i])) for i in (thirds[0], thirds[-1]))
@@ -508,7 +522,6 @@ def incoherence_cause(
     if follows and low - high > TORQUE_FALL:
         assert request is not None
         span = [(frequency_hz[i[0]], frequency_hz[i[-1]]) for i in (thirds[0], thirds[-1])]
-        lag = engine_lag(frequency_hz, ratio, torque, speed_rpm) if ratio is not None else None
         fitted = ""
         if lag is not None:
             half = lag.half_hz
