@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -146,11 +147,27 @@ def load_vehicle_data(path: str | Path) -> VehicleData:
             f"({', '.join(ENGINE_KEYS)}), the speed sensor's arithmetic in [sensors] and the "
             "model's integration in [model]"
         )
+    return vehicle_data_from_tables(document, str(path))
+
+
+def vehicle_data_from_tables(document: Mapping[str, object], source: str) -> VehicleData:
+    """Vehicle data from a vehicle file's tables (``engine``, ``sensors``, ``model``), as a
+    vehicle file or an identification JSON's ``vehicle_data`` holds them; ``source`` names
+    them in messages.
+
+    Raises
+    ------
+    ConfigError
+        As :func:`load_vehicle_data`.
+    """
+    tables = [document.get(name, {}) for name in VEHICLE_TABLES]
+    if not all(isinstance(t, dict) for t in tables):
+        raise ConfigError(f"{source}: {', '.join(VEHICLE_TABLES)} must be tables")
     table, sensors, model = tables
     unknown = [key for key in sensors if key != "speed_average"]
     average = sensors.get("speed_average", "speeds")
     if unknown or average not in ("speeds", "times"):
-        raise ConfigError(f'{path}: [sensors] takes speed_average = "speeds" or "times" only')
+        raise ConfigError(f'{source}: [sensors] takes speed_average = "speeds" or "times" only')
     integration = model.get("integration", "euler")
     lag = model.get("engine_lag", "none")
     unknown = [key for key in model if key not in ("integration", "engine_lag")]
@@ -158,11 +175,11 @@ def load_vehicle_data(path: str | Path) -> VehicleData:
         names = " or ".join(f'"{name}"' for name in INTEGRATION)
         lags = " or ".join(f'"{name}"' for name in ENGINE_LAG)
         raise ConfigError(
-            f"{path}: [model] takes integration = {names} and engine_lag = {lags} only"
+            f"{source}: [model] takes integration = {names} and engine_lag = {lags} only"
         )
     given = tuple(k for k in table if k in ENGINE_KEYS) + tuple(sensors) + tuple(model)
-    engine = parse_engine(table, str(path))
-    return VehicleData(engine, average, given, str(path), integration, lag)
+    engine = parse_engine(table, source)
+    return VehicleData(engine, average, given, source, integration, lag)
 
 
 def parse_engine(table: dict[str, object], source: str) -> EngineGeometry:

@@ -670,3 +670,19 @@ def test_a_parameter_identified_at_zero_has_no_relative_shift(selections, refere
     )
     assert "Tc12" not in entry.shift
     assert entry.shift["J_sum"] == pytest.approx(0.15, abs=0.015)
+
+
+def test_a_candidate_without_a_held_out_run_is_written_as_strict_json() -> None:
+    """A diagnosis of recordings whose validation run was refused has no held-out figure: the
+    JSON carries null there (its schema allows it), not a NaN strict JSON refuses."""
+    from dtid.identification.diagnosis.imbalance import StrokeTest
+    from dtid.identification.diagnosis.refit import Candidate
+    from dtid.simulator.parameters import reference_parameters
+
+    row = kernel_parameters(reference_parameters().as_array())
+    scores = {"fit": {"a.blf @ 10 N*m": 0.1}}
+    candidate = Candidate.tested(("torque_lag",), row, scores, 80.0, 1e-9, 1, np.nan, True, "eng")
+    strokes = StrokeTest(0.02, 0.01, 0.3, {"a.blf": 2}, {"a.blf": [1.0] * 4}, np.nan)
+    for entry in (candidate.as_dict(), strokes.as_dict()):
+        assert entry["validation_gain"] is None
+        json.dumps(entry, allow_nan=False)

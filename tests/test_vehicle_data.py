@@ -82,3 +82,33 @@ def test_a_missing_vehicle_file_is_a_one_line_error(
     assert main(["identify", str(tmp_path / "x.blf"), "--vehicle", str(tmp_path / "no.toml")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"error: vehicle file {tmp_path / 'no.toml'} does not exist"]
+
+
+def test_a_command_given_an_identification_takes_its_vehicle_data(tmp_path: Path) -> None:
+    """`dtid diagnose --identification` and `dtid plan --prior ID.json` build the model the
+    identification was made with: its ``vehicle_data``, unless --vehicle says the same."""
+    import argparse
+    import json
+
+    from dtid.cli.commands.common import vehicle_data
+
+    lagging = tmp_path / "lagging.toml"
+    lagging.write_text('[engine]\nbore = 0.09\n[model]\nengine_lag = "measured"\n')
+    identified = load_vehicle_data(lagging)
+    document = json.loads(json.dumps({"parameters": {}, "vehicle_data": identified.as_dict()}))
+    path = tmp_path / "id.json"
+    taken = vehicle_data(argparse.Namespace(vehicle=None), (path, document))
+    assert taken.as_dict() == identified.as_dict()
+    assert taken.engine_lag == "measured" and taken.engine.bore_m == 0.09
+    assert taken.given == ("bore", "engine_lag")  # those unlike the reference's
+    assert "(the identification's)" in taken.describe()
+    same = vehicle_data(argparse.Namespace(vehicle=lagging), (path, document))
+    assert same.as_dict() == identified.as_dict()
+    other = tmp_path / "other.toml"
+    other.write_text("[engine]\nbore = 0.09\n")
+    with pytest.raises(
+        ConfigError, match='identified with \\(engine_lag = "none" against "measured"\\)'
+    ):
+        vehicle_data(argparse.Namespace(vehicle=other), (path, document))
+    # an identification written before its vehicle data were recorded: --vehicle or the reference
+    assert vehicle_data(argparse.Namespace(vehicle=None), (path, {"parameters": {}})).given == ()

@@ -5,10 +5,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 from dtid.errors import ConfigError
-from dtid.simulator.vehicle_data import VehicleData, load_vehicle_data
+from dtid.simulator.vehicle_data import (
+    VehicleData,
+    load_vehicle_data,
+    vehicle_data_from_tables,
+)
 
 
 def add_vehicle_option(parser: argparse.ArgumentParser) -> None:
@@ -24,9 +29,50 @@ def add_vehicle_option(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def vehicle_data(args: argparse.Namespace) -> VehicleData:
-    """The vehicle data of ``--vehicle``, or the reference engine's."""
-    return load_vehicle_data(args.vehicle) if args.vehicle else VehicleData()
+def vehicle_data(
+    args: argparse.Namespace, identification: tuple[Path, dict] | None = None
+) -> VehicleData:
+    """The vehicle data of ``--vehicle``, else those an identification JSON was made with
+    (``(path, document)``: its ``vehicle_data``), else the reference engine's.
+
+    Raises
+    ------
+    ConfigError
+        If ``--vehicle`` gives other vehicle data than the identification was made with: a model
+        built otherwise would not be the model identified.
+    """
+    given = load_vehicle_data(args.vehicle) if args.vehicle else None
+    recorded = identification[1].get("vehicle_data") if identification else None
+    if identification is None or not isinstance(recorded, dict):
+        return given or VehicleData()
+    path = identification[0]
+    identified = vehicle_data_from_tables(recorded, str(path))
+    if given is None:
+        reference = VehicleData().as_dict()
+        differs = tuple(
+            key
+            for table, values in identified.as_dict().items()
+            for key, value in values.items()  # type: ignore[attr-defined]
+            if reference[table][key] != value  # type: ignore[index]
+        )
+        return replace(identified, given=differs, source=f"{path} (the identification's)")
+    if given.as_dict() != identified.as_dict():
+        raise ConfigError(
+            f"--vehicle {args.vehicle} gives other vehicle data than {path} was identified with "
+            f"({_differences(given.as_dict(), identified.as_dict())}): give the vehicle file "
+            "of the identification, or no --vehicle to take the identification's"
+        )
+    return given
+
+
+def _differences(given: dict, identified: dict) -> str:
+    """The keys whose values differ, as ``key = given against identified``."""
+    return ", ".join(
+        f"{key} = {json.dumps(values[key])} against {json.dumps(identified[table][key])}"
+        for table, values in given.items()
+        for key in values
+        if values[key] != identified[table][key]
+    )
 
 
 def add_interface_options(parser: argparse.ArgumentParser) -> None:

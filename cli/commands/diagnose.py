@@ -14,6 +14,7 @@ and kept only where the fit improves significantly and the held-out runs improve
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from dtid.cli.commands.common import (
@@ -81,12 +82,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Diagnose, print the verdict first, write JSON and plot as asked."""
-    vehicle = vehicle_data(args)
     if args.identification is not None:
         document = read_identification(args.identification)
+        vehicle = vehicle_data(args, (args.identification, document))
         tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle)
         diagnosis = diagnose_document(tests, document, args.identify, mechanisms=args.mechanisms)
     else:
+        vehicle = vehicle_data(args)
         report = identify(
             args.recordings,
             dbc=args.dbc,
@@ -104,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
             report, mechanisms=args.mechanisms, profile_points=args.profile_points
         )
     print_diagnosis(diagnosis)
+    print(vehicle.describe())
     if args.json:
         write_json(args.json, diagnosis.as_dict())
     if args.plot:
@@ -127,10 +130,12 @@ def print_diagnosis(diagnosis: Diagnosis) -> None:
     for candidate in diagnosis.candidates:
         values = ", ".join(f"{k} = {v:.4g}" for k, v in candidate.parameters().items())
         held = HELD_OUT_MEASURE[candidate.frf]
+        gain = candidate.validation_gain
+        change = "not measured (no held-out run)" if math.isnan(gain) else f"{-100 * gain:+.1f} %"
         print(
             f"candidate {'+'.join(candidate.mechanisms)} ({values}): statistic "
             f"{candidate.statistic:.1f}, p = {candidate.p_value:.2g}, criterion "
-            f"{candidate.criterion:.1f}, held-out {held} {100 * -candidate.validation_gain:+.1f} %"
+            f"{candidate.criterion:.1f}, held-out {held} {change}"
             f"{' accepted' if candidate.accepted else ''}"
         )
     if diagnosis.indistinguishable:

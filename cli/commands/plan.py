@@ -47,6 +47,7 @@ from dtid.simulator.parameters import (
     reference_parameters,
 )
 from dtid.simulator.simulate import SimulationOptions
+from dtid.simulator.vehicle_data import VehicleData
 from dtid.workflow import measured_tests
 
 
@@ -165,6 +166,14 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
     return parse_parameters(table, str(path))
 
 
+def planned_vehicle(args: argparse.Namespace) -> VehicleData:
+    """The model's vehicle data: ``--vehicle``'s, else those the ``--prior`` identification was
+    made with, else the reference's (:func:`dtid.cli.commands.common.vehicle_data`)."""
+    if args.prior is not None and _is_identification(args.prior):
+        return vehicle_data(args, (args.prior, read_identification(args.prior, "--prior")))
+    return vehicle_data(args)
+
+
 def _is_identification(path: Path) -> bool:
     """Whether --prior names an identification's JSON (else a parameter TOML)."""
     return path.suffix.lower() == ".json"
@@ -175,7 +184,7 @@ def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], list[float], 
     validation runs, and their idle speed."""
     if not args.after:
         return [], [], None
-    tests = measured_tests(args.after, args.dbc, args.signals, vehicle_data(args))
+    tests = measured_tests(args.after, args.dbc, args.signals, planned_vehicle(args))
     designs, held_out = recorded_designs(tests)
     return designs, held_out, float(np.mean([t.setpoint_rpm for t in tests]))
 
@@ -232,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
         options=SimulationOptions(controller=IdleController(setpoint_rpm=setpoint)),
         recorded=recorded,
         held_out_nm=held_out,
-        vehicle=vehicle_data(args) if args.vehicle else None,
+        vehicle=planned_vehicle(args),
         spread=spread,
         vehicles=args.spread_vehicles,
     )

@@ -59,6 +59,7 @@ from dtid.identification.model.cylinder_spread import (
 )
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import RunSelection
+from dtid.jsonfile import json_number
 from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.mechanisms import BY_NAME
 
@@ -118,7 +119,7 @@ class StrokeTest:
             "p_value": self.p_value,
             "places": self.places,
             "factors": self.factors,
-            "validation_gain": self.validation_gain,
+            "validation_gain": json_number(self.validation_gain),  # null: no held-out run
             "significant": self.significant,
         }
 

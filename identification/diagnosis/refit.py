@@ -82,6 +82,7 @@ from dtid.identification.uncertainty.profile import (
     profile,
     statistic,
 )
+from dtid.jsonfile import json_number
 from dtid.simulator.mechanisms import (
     BY_NAME,
     EXTRA_INDEX,
@@ -326,7 +327,7 @@ class Candidate:
             "statistic": self.statistic,
             "p_value": self.p_value,
             "criterion": self.criterion,
-            "validation_gain": self.validation_gain,
+            "validation_gain": json_number(self.validation_gain),  # null: no held-out run
             "accepted": self.accepted,
             "frf": self.frf,
         }
