@@ -51,6 +51,7 @@ from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import run_identification
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.parameterization import theta_from_parameters
+from dtid.jsonfile import json_number, write_json
 from dtid.simulator.mechanisms import BY_NAME, MECHANISMS, Effects, kernel_parameters
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
 from dtid.simulator.simulate import simulate
@@ -144,7 +145,7 @@ def run_case(index: int, clean: float) -> dict[str, object]:
         last = diagnosis.accepted[-1]
         row["validation_after"] = sum(last.nrmse.get("validation", {}).values())
         row["held_out_gain"] = [  # each accepted step's own held-out measure (Candidate)
-            {"mechanism": c.mechanisms[-1], "frf": c.frf, "gain": c.validation_gain}
+            {"mechanism": c.mechanisms[-1], "frf": c.frf, "gain": json_number(c.validation_gain)}
             for c in diagnosis.accepted
         ]
         after = theta_from_parameters(last.drivetrain())
@@ -243,7 +244,7 @@ def main() -> None:
         "cases": cases,
     }
     args.out.parent.mkdir(exist_ok=True)
-    args.out.write_text(json.dumps(document, indent=1) + "\n")
+    write_json(args.out, document)
 
 
 if __name__ == "__main__":
