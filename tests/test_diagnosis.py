@@ -497,6 +497,25 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     validate(diagnosis.as_dict(), "diagnosis")
 
 
+def test_a_concealed_asymmetric_play_is_listed_as_indistinguishable(tmp_path, reference):
+    """The undetectable case, concealed: a DMF play 60 % wider in drive than in coast, in
+    neutral, where no mean torque loads the DMF. Diagnosed at the truth's drivetrain the map
+    finds nothing, nothing is refitted or named, and the asymmetry is listed among what these
+    data can neither detect nor exclude, with the drivetrain unmoved by it."""
+    from dtid.workflow import measured_tests
+
+    path = tmp_path / "run.blf"
+    command = ["simulate", str(path), "--amplitudes", "5", "10", "2", "--duration", "20"]
+    assert dtid([*command, "--seed", "5", "--effect", "asymmetric_play:asym12=0.6"]) == 0
+    document = identification_document(path, reference)
+    diagnosis = diagnose_document(measured_tests([path]), document)
+    assert diagnosis.adequate and not diagnosis.candidates and not diagnosis.accepted
+    assert "asymmetric_play" in diagnosis.indistinguishable
+    assert "asymmetric_play" in diagnosis.sentence()
+    absorbed = {entry.mechanism: entry for entry in diagnosis.absorbed}
+    assert max(map(abs, absorbed["asymmetric_play"].shift.values())) < 0.02
+
+
 @pytest.fixture(scope="module")
 def dragged(tmp_path_factory) -> Path:
     """A recording with a gearbox drag concealed: 2 N*m against the housing at idle."""
