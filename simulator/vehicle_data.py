@@ -119,7 +119,7 @@ class VehicleData:
             return "vehicle data: the reference engine's and eq. (9)'s speed sensor (no --vehicle)"
         return f"vehicle data: {', '.join(self.given)} from {self.source}, the rest the reference's"
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> dict[str, dict[str, object]]:
         """The JSON entry ``vehicle_data``: the crank-train data by ``[engine]`` key (SI units),
         the speed sensor's arithmetic and the model's integration."""
         return {

@@ -48,31 +48,32 @@ def vehicle_data(
     path = identification[0]
     identified = vehicle_data_from_tables(recorded, str(path))
     if given is None:
-        reference = VehicleData().as_dict()
-        differs = tuple(
-            key
-            for table, values in identified.as_dict().items()
-            for key, value in values.items()  # type: ignore[attr-defined]
-            if reference[table][key] != value  # type: ignore[index]
+        differs = _changed(VehicleData().as_dict(), identified.as_dict())
+        return replace(identified, given=tuple(differs), source=f"{path} (the identification's)")
+    changed = _changed(identified.as_dict(), given.as_dict())
+    if changed:
+        listed = ", ".join(
+            f"{key} = {json.dumps(new)} against {json.dumps(old)}"
+            for key, (old, new) in changed.items()
         )
-        return replace(identified, given=differs, source=f"{path} (the identification's)")
-    if given.as_dict() != identified.as_dict():
         raise ConfigError(
             f"--vehicle {args.vehicle} gives other vehicle data than {path} was identified with "
-            f"({_differences(given.as_dict(), identified.as_dict())}): give the vehicle file "
-            "of the identification, or no --vehicle to take the identification's"
+            f"({listed}): give the vehicle file of the identification, or no --vehicle to take "
+            "the identification's"
         )
     return given
 
 
-def _differences(given: dict, identified: dict) -> str:
-    """The keys whose values differ, as ``key = given against identified``."""
-    return ", ".join(
-        f"{key} = {json.dumps(values[key])} against {json.dumps(identified[table][key])}"
-        for table, values in given.items()
-        for key in values
-        if values[key] != identified[table][key]
-    )
+def _changed(
+    before: dict[str, dict[str, object]], after: dict[str, dict[str, object]]
+) -> dict[str, tuple[object, object]]:
+    """The keys of :meth:`VehicleData.as_dict`'s tables whose values differ: (before, after)."""
+    return {
+        key: (before[table][key], value)
+        for table, values in after.items()
+        for key, value in values.items()
+        if before[table][key] != value
+    }
 
 
 def add_interface_options(parser: argparse.ArgumentParser) -> None:
