@@ -25,10 +25,12 @@ from dtid.identification.setups import two_mass
 from dtid.identification.uncertainty.profile import (
     BIN_CORRELATION,
     LOCAL_BINS,
+    NOISY_FLAT_RISE,
     THRESHOLD,
     Profile,
     independent_bins,
     interval_and_verdict,
+    judged_flat,
     nested_p_value,
     profile,
     small_sample_factor,
@@ -432,3 +434,31 @@ def test_an_interval_that_excludes_the_estimate_beats_it() -> None:
     assert with_estimate(0.40, 9.0, 1.0).beats_estimate  # inside, its own statistic too large
     assert not with_estimate(0.40, 6.0, 4.0).beats_estimate
     assert not with_estimate(0.40, 0.0, 0.0).as_dict()["estimate"]["beaten"]
+
+
+def test_a_shallow_profile_is_flat_only_with_its_minimum_at_a_bound() -> None:
+    """The DMF stiffness of vehicle_1 (../shared/independent, 2026-11-29, `--profile-points 7`),
+    as its profile measured it: the other parameters compensate, so eq. (17) climbs only 0.037
+    over the grid inside the box, while the statistic (less its margin) crosses the threshold on
+    both sides. Its minimum inside the box, the statistic bounds it: 240-282 N*m/rad around the
+    truth's 250 (the rule that held every shallow profile to a 0.05 climb had called it `no`).
+    The same profile with its minimum at a bound (a friction found at 0) is `no`."""
+    values = np.array([0.0, 166.7, 209.5, 230.8, 236.2, 241.5, 252.2, 272.5, 277.6, 282.6, 292.8])
+    values = np.concatenate([values, [333.3, 500.0, 666.7, 833.3, 1000.0]])
+    objective = [0.3881, 0.08614, 0.05808, 0.05237, 0.05282, 0.04927, 0.05053, 0.04969, 0.04985]
+    objective += [0.05502, 0.05222, 0.06249, 0.07168, 0.07549, 0.07882, 0.07927]
+    statistic = [7143.0, 164.8, 36.83, 7.992, 6.782, 4.409, 0.0, 1.856, 4.742, 6.389, 12.74]
+    statistic += [68.75, 78.89, 95.44, 145.5, 165.7]
+    margin = [25.43, 9.458, 1.855, 1.447, 1.959, 0.9506, 0.0, 2.075, 1.074, 2.525, 2.521, 1.883]
+    margin += [2.950, 5.803, 7.130, 13.10]
+    stat, margin_ = np.array(statistic), np.array(margin)
+    interval, verdict = interval_and_verdict(values, stat - margin_, 252.2)
+    on_grid = np.isin(np.round(values, 1), np.round(np.linspace(0.0, 1000.0, 7), 1))
+    c12 = Profile("c12", values, np.array(objective), stat, margin_, interval, verdict, "", on_grid)
+    assert max(c12.rise) < NOISY_FLAT_RISE and not c12.flat
+    inside = judged_flat(c12, stochastic=True, at_bound=False)
+    assert inside.verdict == "practical"
+    lower, upper = inside.interval
+    assert 236.2 < lower < 241.5 and 277.6 < upper < 282.6 and lower < 250.0 < upper
+    assert judged_flat(c12, stochastic=True, at_bound=True).verdict == "no"
+    assert judged_flat(c12, stochastic=False, at_bound=True).verdict == "practical"
