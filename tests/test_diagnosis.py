@@ -497,6 +497,16 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     validate(diagnosis.as_dict(), "diagnosis")
 
 
+def concealed(folder: Path, effect: str, duration: float = 20.0) -> Path:
+    """The reference vehicle's test (5, 10, 2 N*m, seed 5) with a mechanism concealed by
+    ``dtid simulate --effect``, written to ``folder``."""
+    path = folder / "run.blf"
+    command = ["simulate", str(path), "--amplitudes", "5", "10", "2"]
+    command += ["--duration", f"{duration:g}", "--seed", "5", "--effect", effect]
+    assert dtid(command) == 0
+    return path
+
+
 def test_a_concealed_asymmetric_play_is_listed_as_indistinguishable(tmp_path, reference):
     """The undetectable case, concealed: a DMF play 60 % wider in drive than in coast, in
     neutral, where no mean torque loads the DMF. Diagnosed at the truth's drivetrain the map
@@ -504,9 +514,7 @@ def test_a_concealed_asymmetric_play_is_listed_as_indistinguishable(tmp_path, re
     data can neither detect nor exclude, with the drivetrain unmoved by it."""
     from dtid.workflow import measured_tests
 
-    path = tmp_path / "run.blf"
-    command = ["simulate", str(path), "--amplitudes", "5", "10", "2", "--duration", "20"]
-    assert dtid([*command, "--seed", "5", "--effect", "asymmetric_play:asym12=0.6"]) == 0
+    path = concealed(tmp_path, "asymmetric_play:asym12=0.6")
     document = identification_document(path, reference)
     diagnosis = diagnose_document(measured_tests([path]), document)
     assert diagnosis.adequate and not diagnosis.candidates and not diagnosis.accepted
@@ -519,10 +527,7 @@ def test_a_concealed_asymmetric_play_is_listed_as_indistinguishable(tmp_path, re
 @pytest.fixture(scope="module")
 def dragged(tmp_path_factory) -> Path:
     """A recording with a gearbox drag concealed: 2 N*m against the housing at idle."""
-    path = tmp_path_factory.mktemp("concealed") / "run.blf"
-    command = ["simulate", str(path), "--amplitudes", "5", "10", "2", "--duration", "20"]
-    assert dtid([*command, "--seed", "5", "--effect", "gearbox_drag:d3=0.02"]) == 0
-    return path
+    return concealed(tmp_path_factory.mktemp("concealed"), "gearbox_drag:d3=0.02")
 
 
 @pytest.mark.slow
@@ -563,10 +568,7 @@ def test_a_concealed_gearbox_drag_is_named_refitted_and_improves_the_held_out_ru
 def belted(tmp_path_factory) -> Path:
     """A recording with a belt-driven accessory concealed: 0.03 kg*m^2 on the crank through a
     130 N*m/rad belt (its mode near 10.5 Hz, inside the chirps' band)."""
-    path = tmp_path_factory.mktemp("concealed") / "run.blf"
-    command = ["simulate", str(path), "--amplitudes", "5", "10", "2", "--duration", "20"]
-    assert dtid([*command, "--seed", "5", "--effect", "accessory_mode:J4=0.03"]) == 0
-    return path
+    return concealed(tmp_path_factory.mktemp("concealed"), "accessory_mode:J4=0.03")
 
 
 @pytest.mark.slow
@@ -602,11 +604,8 @@ def test_a_concealed_accessory_mode_is_found_at_its_own_resonance(belted, refere
 def ringed(tmp_path_factory) -> Path:
     """A recording with a DMF friction ring concealed: 4.2 N*m more friction beyond 0.017 rad
     (off the screen's grid of magnitudes), 40 s chirps."""
-    path = tmp_path_factory.mktemp("concealed") / "run.blf"
-    command = ["simulate", str(path), "--amplitudes", "5", "10", "2", "--duration", "40"]
     effect = "friction_hysteresis:Tc12_2=4.2,phi12_f=0.017"
-    assert dtid([*command, "--seed", "5", "--effect", effect]) == 0
-    return path
+    return concealed(tmp_path_factory.mktemp("concealed"), effect, duration=40.0)
 
 
 @pytest.mark.slow
@@ -636,11 +635,8 @@ def test_a_concealed_friction_ring_is_named_against_the_damping_it_resembles(rin
 def clutched(tmp_path_factory) -> Path:
     """A recording with a two-stage clutch damper concealed: 200 N*m/rad more beyond 0.004 rad
     of twist (past the 0.012 rad play), 40 s chirps."""
-    path = tmp_path_factory.mktemp("concealed") / "run.blf"
-    command = ["simulate", str(path), "--amplitudes", "5", "10", "2", "--duration", "40"]
     effect = "clutch_two_stage:c23_2=200,knee23=0.004"
-    assert dtid([*command, "--seed", "5", "--effect", effect]) == 0
-    return path
+    return concealed(tmp_path_factory.mktemp("concealed"), effect, duration=40.0)
 
 
 @pytest.mark.slow
