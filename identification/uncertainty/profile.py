@@ -129,8 +129,8 @@ Measured on the accuracy trial's truth 1: the DMF friction, found at 0 where the
 0.28 N*m, climbed less than this, and without the rule its interval [0, 0.249] missed the
 truth; with it the friction is `no` on all six truths, as the paper's finding on real data
 ("rounded or even flat at certain error level") expects. A minimum inside the box is not held
-to it (since 2026-11-29): there the statistic, which crosses the threshold on both sides, is
-what bounds the parameter. On vehicle_1 of ../shared/independent the rule had called c12, d12
+to it (since 2026-11-29): there the statistic bounds the parameter on each side where it
+crosses the threshold. On vehicle_1 of ../shared/independent the rule had called c12, d12
 and d23 `no` whose statistics closed at 240-282 N*m/rad, 0.95-1.42 and 0.008-0.075 N*m*s/rad
 around truths of 250, 1.0 and 0.05 (the other parameters compensating, c12's profile climbed
 0.037 over its grid); docs/accuracy.md has the calibration with the rule so scoped."""
