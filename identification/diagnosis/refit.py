@@ -904,5 +904,7 @@ def diagnose_mechanisms(
         pool.sort(key=lambda s: ranked.index(s.mechanism))
         pool = [s for s in pool if s.mechanism not in current][:COMBINED]
     tried.sort(key=lambda c: c.criterion)
+    if accepted or len(alone) == 1:  # nothing to rank: no simulation spent on it
+        return screened, tried, accepted, baseline_row
     best_alone = min(alone, key=lambda row: sum(refit.run_nrmse(row)["fit"].values()))
     return screened, tried, accepted, best_alone
