@@ -5,9 +5,11 @@ worker), without the bus: round 1 is the paper's test, recorded on the truth (on
 identification trial's random drivetrains with its own idle loop, ECU timing, engine and noise,
 which the model side does not share: it reads the loop from each recording and is told the
 engine); after each round every round so far is identified together by the whole search
-(profiles off, as the worker, the previous round's optimum polished too), the next round is
-planned at what was identified with every recorded run counted in and the budget left, as the
-worker plans it, the rounds are compared (:mod:`dtid.identification.planning.agreement`) and
+(with the worker's default profiles, ``--profile-points 5``; the previous round's optimum
+polished too), the next round is planned at what was identified with every recorded run counted
+in and the budget left, as the worker plans it (a target is met only where its profile interval
+confirms the prediction: :mod:`dtid.identification.planning.confirmation`), the rounds are
+compared (:mod:`dtid.identification.planning.agreement`) and
 the fit tested (:func:`dtid.identification.diagnosis.mismatch.adequacy`); until the plan says
 the targets are met (``targets_met``, or ``inconsistent`` where the parameters jumped from the
 previous round, ``inadequate`` where the model does not explain the recordings) or the next
@@ -65,6 +67,13 @@ def main() -> None:
         help="vehicles each round is planned for besides the identified one (dtid worker's "
         "--plan-vehicles; 0: the identified parameters alone, as before 2026-11-27)",
     )
+    parser.add_argument(
+        "--profile-points",
+        type=int,
+        default=5,
+        help="profile grid points of each round's identification (dtid worker's default: 5; 0: "
+        "no intervals, the prediction alone decides, as before 2026-11-29)",
+    )
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
 
@@ -84,7 +93,7 @@ def main() -> None:
             tests,
             reference_parameters(),
             identify_amplitudes=identify_nm,
-            profile_points=0,
+            profile_points=args.profile_points,
             warm_starts=[before[0]] if before else (),
         )
         seconds = time.perf_counter() - began
@@ -107,6 +116,7 @@ def main() -> None:
             held_out_nm=held_out,
             spread=RECORDED,
             vehicles=args.plan_vehicles,
+            identification=report.as_dict() if args.profile_points else None,
         )
         errors = relative_errors(report.identification.theta, truth)
         design = recommendation.design
@@ -126,6 +136,7 @@ def main() -> None:
                 "errors": errors,
                 "next": design.as_dict(setpoint) if design else None,
                 "unmet_next": [u.name for u in recommendation.unmet],
+                "unconfirmed": {c.name: c.as_dict() for c in recommendation.unconfirmed},
                 "precision": {n: round(v, 5) for n, v in reached.items()},
                 "agreement": agreed.as_dict() if agreed else None,
                 "fit": fit_check,
@@ -140,9 +151,13 @@ def main() -> None:
             + (", ".join(f"{n} {100 * errors[n]:+.1f} %" for n in missed) or "none")
             + f"; next: {design if design else 'none (the plan says the targets are met)'}"
             + (f"; from the previous round: {agreed.summary()}" if agreed else "")
-            + (f"; fit adequate: {fit_check['adequate']}" if fit_check else ""),
+            + (f"; fit adequate: {fit_check['adequate']}" if fit_check else "")
+            + "".join(f"; {c.name}: {c.reason()}" for c in recommendation.unconfirmed),
             flush=True,
         )
+        if design is None and not recommendation.meets_targets:
+            stopped = "no_plan"
+            break
         if design is None:
             said_met = {
                 "plan": None,

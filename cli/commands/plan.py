@@ -78,7 +78,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="RECORDING",
         help="plan a follow-up to these recordings: their identifying runs count in, the new "
         "test's time only is minimised, the idle speed is theirs (give --prior their "
-        "identification's JSON)",
+        "identification's JSON: its profile intervals then confirm the targets the prediction "
+        "says are met)",
     )
     parser.add_argument(
         "--target",
@@ -189,6 +190,26 @@ def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], list[float], 
     return designs, held_out, float(np.mean([t.setpoint_rpm for t in tests]))
 
 
+def recorded_identification(args: argparse.Namespace) -> dict | None:
+    """The ``--prior`` identification when it was made of ``--after``'s recordings (its profile
+    intervals then confirm the targets the prediction says are met:
+    :mod:`dtid.identification.planning.confirmation`); None otherwise, with a note when it was
+    made of other recordings."""
+    if not args.after or args.prior is None or not _is_identification(args.prior):
+        return None
+    document = read_identification(args.prior, "--prior")
+    made_of = set(document.get("combustion_variation") or {})
+    given = {str(path) for path in args.after}
+    if made_of != given:
+        print(
+            f"note: --prior {args.prior} was identified from other recordings than --after's "
+            f"({', '.join(sorted(made_of)) or 'none named'}): its intervals do not confirm "
+            "the targets; the prediction alone decides"
+        )
+        return None
+    return document
+
+
 def planned_spread(args: argparse.Namespace) -> float | str:
     """--spread as :func:`dtid.identification.planning.design.plan_test` takes it: a relative
     half-width or ``recorded``, with the defaults the option's help gives."""
@@ -231,6 +252,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--spread-vehicles must be at least 1")
     recorded, held_out, idle = recorded_runs(args)
     setpoint = args.setpoint or idle or IdleController().setpoint_rpm
+    identification = recorded_identification(args)
     info, recommendation = plan_test(
         prior,
         targets,
@@ -244,6 +266,7 @@ def run(args: argparse.Namespace) -> int:
         vehicle=planned_vehicle(args),
         spread=spread,
         vehicles=args.spread_vehicles,
+        identification=identification,
     )
     limits = {
         "max_amplitude_nm": cap,

@@ -30,6 +30,7 @@ import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +40,7 @@ from dtid.errors import ConfigError
 from dtid.identification.frf.closed_loop import sweep_edge_hz
 from dtid.identification.frf.runs import ChirpRun
 from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.planning.confirmation import IntervalCheck, interval_checks
 from dtid.identification.planning.information import (
     DEFAULT_SEEDS,
     RESOLUTION_HZ,
@@ -56,7 +58,11 @@ from dtid.identification.planning.spread import (
     spread_priors,
 )
 from dtid.identification.search.identify import AMPLITUDE_MATCH, amplitude_levels, split_runs
-from dtid.identification.search.parameterization import PASSENGER_CAR_RANGES, THETA_NAMES
+from dtid.identification.search.parameterization import (
+    PASSENGER_CAR_RANGES,
+    THETA_NAMES,
+    theta_from_parameters,
+)
 from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.parameters import UNITS, DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions
@@ -363,6 +369,10 @@ class Recommendation:
         Designs evaluated.
     recorded
         The runs recorded before, counted in (a follow-up's; empty otherwise).
+    intervals
+        The recorded runs' profile intervals against the targets
+        (:mod:`~dtid.identification.planning.confirmation`; empty without an identification);
+        a target they do not confirm is unmet whatever the prediction says.
     """
 
     design: Design | None
@@ -371,6 +381,17 @@ class Recommendation:
     excluded: dict[float, str]
     designs_tried: int
     recorded: tuple[Design, ...] = ()
+    intervals: tuple[IntervalCheck, ...] = ()
+
+    @property
+    def unconfirmed(self) -> tuple[IntervalCheck, ...]:
+        """The targets whose profile intervals do not confirm them."""
+        return tuple(c for c in self.intervals if not c.confirms)
+
+    @property
+    def meets_targets(self) -> bool:
+        """Whether every target is met: predicted, and confirmed by the intervals given."""
+        return not self.unmet and not self.unconfirmed
 
     @property
     def precision(self) -> dict[str, float]:
@@ -595,6 +616,7 @@ def plan_test(
     vehicle: VehicleData | None = None,
     spread: float | Mapping[str, float] | str = 0.0,
     vehicles: int = DEFAULT_VEHICLES,
+    identification: Mapping[str, Any] | None = None,
 ) -> tuple[PlanInformation, Recommendation]:
     """Measure the candidate amplitudes' information at a prior and recommend a test.
 
@@ -608,7 +630,10 @@ def plan_test(
     or by name; :data:`~dtid.identification.planning.spread.RECORDED` for the recorded runs'
     own precision) the information is measured at ``vehicles`` drivetrains around the prior too
     (:func:`dtid.identification.planning.spread.spread_priors`) and the test must meet every
-    target at each of them.
+    target at each of them. With ``identification`` (the JSON document of the ``recorded``
+    runs' identification, with its profiles) a target is met only where the profile interval
+    confirms it too, and the next test is planned for what the intervals showed the
+    prediction to be off by (:mod:`dtid.identification.planning.confirmation`).
     """
     options = options or SimulationOptions()
     if vehicle is not None:
@@ -642,9 +667,10 @@ def plan_test(
         around=tuple(around),
         spread=widths if around else {},
     )
-    recommendation = recommend(
+    recommendation = recommend_confirmed(
         info,
         targets,
+        identification,
         max_amplitude_nm=cap,
         max_time_s=max_time_s,
         validation_nm=validation_nm,
@@ -653,6 +679,44 @@ def plan_test(
         held_out_nm=held_out_nm,
     )
     return info, recommendation
+
+
+def recommend_confirmed(
+    info: PlanInformation,
+    targets: Mapping[str, float],
+    identification: Mapping[str, Any] | None,
+    **limits: Any,
+) -> Recommendation:
+    """:func:`recommend`, with each target the prediction says the recorded runs meet checked
+    against their identification's profile interval
+    (:mod:`dtid.identification.planning.confirmation`): where the interval is wider, the test is
+    planned for the prediction scaled by the factor it was off by, and the target stays unmet.
+
+    Parameters
+    ----------
+    info, targets
+        As :func:`recommend`.
+    identification
+        The JSON document of the recorded runs' identification (its ``parameters``,
+        ``intervals`` and ``profiles``); None, or no runs recorded: :func:`recommend` alone.
+    **limits
+        :func:`recommend`'s other arguments (``recorded`` among them).
+    """
+    recommendation = recommend(info, targets, **limits)
+    recorded = limits.get("recorded") or ()
+    if identification is None or not recorded:
+        return recommendation
+    reached = predict_worst(info, None, recorded)
+    checks = interval_checks(
+        identification,
+        targets,
+        {name: SIGMAS * 100.0 * value for name, value in reached.items()},
+        theta_from_parameters(info.prior),
+    )
+    planning = {**targets, **{c.name: c.planning_target_percent for c in checks if not c.confirms}}
+    if planning != dict(targets):
+        recommendation = recommend(info, planning, **limits)
+    return dataclasses.replace(recommendation, intervals=checks)
 
 
 def recorded_spread(info: PlanInformation, recorded: Sequence[Design]) -> dict[str, float]:
@@ -716,11 +780,17 @@ def plan_document(
 ) -> dict[str, object]:
     """``dtid plan``'s JSON (docs/schemas/plan.schema.json): the recommended plan, its predicted
     precision (relative, 1 sigma, with the runs recorded so far), test time and unmet targets,
-    the amplitudes that identify, the recorded runs and their precision, and the paper's plan
-    beside it."""
+    the amplitudes that identify, the recorded runs and their precision, the paper's plan
+    beside it, and, where the recorded runs' identification was given, its profile intervals
+    against the targets (``intervals``)."""
     design = recommendation.design
     paper = predict_worst(info, PAPER_DESIGN)
     recorded = recommendation.recorded
+    confirmation = (
+        {"intervals": {c.name: c.as_dict() for c in recommendation.intervals}}
+        if recommendation.intervals
+        else {}
+    )
     identify = sorted(
         {a for d in [*recorded, *([design] if design else [])] for a in d.amplitudes_nm}
     )
@@ -743,8 +813,8 @@ def plan_document(
                 _rounded(predict_worst(info, None, recorded)) if recorded else None
             ),
         },
-        "unmet": [u.as_dict() for u in recommendation.unmet],
-        "meets_targets": not recommendation.unmet,
+        "unmet": _unmet_entries(recommendation, targets),
+        "meets_targets": recommendation.meets_targets,
         "targets_percent": dict(targets),
         "sigmas": SIGMAS,
         "limits": dict(limits),
@@ -772,7 +842,24 @@ def plan_document(
             "excluded": {f"{a:g}": why for a, why in recommendation.excluded.items()},
             "designs_tried": recommendation.designs_tried,
         },
+        **confirmation,
     }
+
+
+def _unmet_entries(
+    recommendation: Recommendation, targets: Mapping[str, float]
+) -> list[dict[str, object]]:
+    """The JSON's ``unmet``: the design's, and each target its profile interval does not
+    confirm (its own target, the interval's half-width and why, in place of the entry the
+    design's tightened target made)."""
+    unconfirmed = {c.name: c for c in recommendation.unconfirmed}
+    entries = [u.as_dict() for u in recommendation.unmet if u.name not in unconfirmed]
+    for name, check in unconfirmed.items():
+        reason = check.reason()
+        if any(u.name == name for u in recommendation.unmet):
+            reason += ", which the test within the limits does not reach"
+        entries.append(Unmet(name, targets[name], check.half_width_percent, reason).as_dict())
+    return entries
 
 
 def _rounded(precision: Mapping[str, float]) -> dict[str, float]:

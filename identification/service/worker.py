@@ -788,6 +788,7 @@ class Worker:
                 vehicle=self.options.vehicle if self.options.vehicle.given else None,
                 spread=RECORDED,
                 vehicles=self.options.plan_vehicles,
+                identification=session.result,
             )
         except (DtidError, KeyError, TypeError, ValueError) as error:
             message = f"the follow-up plan: {error}"
