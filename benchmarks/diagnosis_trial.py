@@ -133,6 +133,7 @@ def run_case(index: int, clean: float) -> dict[str, object]:
         "cylinders_p": None if diagnosis.cylinders is None else diagnosis.cylinders.p_value,
         "identify_s": identified_s,
         "diagnose_s": diagnosis.seconds,
+        "drivetrain_refit": None if diagnosis.refitted is None else diagnosis.refitted.as_dict(),
     }
     validation = sum(report.identification.validation_nrmse.values())
     row["validation_before"] = validation
@@ -187,6 +188,10 @@ def summarise(cases: list[dict[str, object]]) -> dict[str, object]:
         "visible_adequate": sum(bool(c["adequate"]) for c in visible),
         "visible_listed_indistinguishable": sum(
             c["concealed"] in c["indistinguishable"]  # type: ignore[operator]
+            for c in visible
+        ),
+        "visible_drivetrain_refit_adequate": sum(  # nothing named; the refit alone explains
+            not c["named"] and bool((c.get("drivetrain_refit") or {}).get("adequate"))  # type: ignore[union-attr]
             for c in visible
         ),
         "clean": len(clean),
