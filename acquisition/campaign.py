@@ -120,7 +120,14 @@ def next_round(
     if document.get("plan") is None:
         if document.get("meets_targets"):
             return _met(document)
-        return Decision(None, "no_plan", "the worker's plan holds no next round")
+        unmet = "; ".join(
+            f"{u.get('name')}: {u.get('reason')}" for u in document.get("unmet") or []
+        )
+        return Decision(
+            None,
+            "no_plan",
+            "the worker's plan holds no next round" + (f" (unmet: {unmet})" if unmet else ""),
+        )
     period = config.test.request_period_s
     try:
         plan = plan_from_document(document, "the worker's plan", period)

@@ -457,3 +457,4 @@ def test_a_target_its_profile_interval_does_not_confirm_stays_unmet(
     ).unconfirmed
     assert check.name == "eps23" and not check.closed
     assert check.half_width_percent == pytest.approx(100.0)  # to the box's end, 2 x the value
+    assert check.planning_target_percent == DEFAULT_TARGETS_PERCENT["eps23"]  # not scaled

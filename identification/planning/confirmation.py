@@ -14,9 +14,10 @@ A profile-likelihood interval (95 %, about two sigma: what a target at
 :data:`~dtid.identification.planning.design.SIGMAS` sigma asks of) therefore has the last
 word on a target the prediction says is met: the target is **confirmed** when the interval is
 closed on both sides and its wider side, relative to the estimate, lies within the target.
-Where it is not, the next test is planned for the linearised prediction scaled by what the
-interval showed it to be off by (:attr:`IntervalCheck.planning_target_percent`), and the
-target stays unmet.
+Where it is not, the target stays unmet, and where the interval is closed the next test is
+planned for the linearised prediction scaled by what the interval showed it to be off by
+(:attr:`IntervalCheck.planning_target_percent`; an open interval reaches the search's bound,
+which says nothing of the factor).
 """
 
 from __future__ import annotations
@@ -84,10 +85,11 @@ class IntervalCheck:
     @property
     def planning_target_percent(self) -> float:
         """The linearised precision the next test must reach for the interval to meet the
-        target: the target scaled by prediction over interval where the interval is the wider
-        (the prediction was optimistic by that factor), else the target, %."""
+        target: the target scaled by prediction over interval where a closed interval is the
+        wider (the prediction was optimistic by that factor), else the target, %. An open
+        interval's width is the box's, not the data's: it is not scaled by."""
         width = self.half_width_percent
-        if self.confirms or width <= self.predicted_percent:
+        if self.confirms or not self.closed or width <= self.predicted_percent:
             return self.target_percent
         return self.target_percent * self.predicted_percent / width
 
@@ -96,21 +98,26 @@ class IntervalCheck:
         if self.confirms:
             return ""
         lower, upper = ("open" if v is None else f"{v:.4g}" for v in self.interval)
+        width, target, predicted = (
+            self.half_width_percent,
+            self.target_percent,
+            self.predicted_percent,
+        )
         span = (
-            f"its 95 % profile interval {lower} to {upper} reaches {self.half_width_percent:.0f} "
-            f"% from the estimate {self.estimate:.4g}"
-            + ("" if self.closed else " (open: at least that far)")
+            f"its 95 % profile interval {lower} to {upper} reaches {width:.1f} % from the "
+            f"estimate {self.estimate:.4g}" + ("" if self.closed else " (open: at least that far)")
+        )
+        beyond = f"wider than the target of {target:g} %" if width > target else "not closed"
+        said = (
+            f"that the linearised prediction ({predicted:.1f} %) says is met"
+            if predicted <= target
+            else f"(the linearised prediction: {predicted:.1f} %)"
         )
         scaled = self.planning_target_percent
-        then = (
-            f"; the next test is planned for a linearised {scaled:.1f} %"
-            if scaled < self.target_percent
-            else ""
-        )
-        return (
-            f"{span}, wider than the target of {self.target_percent:g} % that the linearised "
-            f"prediction ({self.predicted_percent:.1f} %) says is met{then}"
-        )
+        then = ""
+        if scaled < target:
+            then = f"; the next test is planned for a linearised {scaled:.1f} %"
+        return f"{span}, {beyond} {said}{then}"
 
     def as_dict(self) -> dict[str, Any]:
         """The plan JSON's ``intervals`` entry."""
