@@ -81,6 +81,12 @@ def test_next_round_stops_when_met_over_budget_refused_or_missing() -> None:
     assert refused.stopped == "no_plan" and "max_amplitude_nm = 15" in refused.message
     assert next_round(None, 500.0, config).stopped == "no_plan"
     assert next_round(_document({"amplitudes_nm": [5]}), 500.0, config).stopped == "no_plan"
+    unconfirmed = {  # the prediction met, the friction's interval open: no round, no stop as met
+        **_document(None),
+        "unmet": [{"name": "Tc12", "reason": "its 95 % profile interval open to 0.4 ..."}],
+    }
+    stop = next_round(unconfirmed, 500.0, config)
+    assert stop.stopped == "no_plan" and "Tc12: its 95 % profile interval" in stop.message
 
 
 def test_next_round_does_not_trust_met_targets_when_the_rounds_disagree() -> None:
