@@ -71,9 +71,11 @@ def _replay(endpoint: str, security: Security | None, timeout_ms: int = 1500) ->
     if security is not None:
         security.connect(request, endpoint, "replay")
     request.connect(endpoint)
-    try:
-        request.send(json.dumps({"from_seq": 0}).encode())
+    try:  # a failed CURVE handshake can leave no peer to send to: then nothing gets through
+        request.send(json.dumps({"from_seq": 0}).encode(), zmq.NOBLOCK)
         return json.loads(request.recv()) if request.poll(timeout_ms) else None
+    except zmq.Again:
+        return None
     finally:
         request.close(0)
 

@@ -20,6 +20,7 @@ The view only reads: it sends nothing to the bus and changes nothing in the pipe
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -419,7 +420,8 @@ class Monitor:
         self._req.setsockopt(zmq.LINGER, 0)
         self._security.connect(self._req, self._replay_endpoint, "replay")
         self._req.connect(self._replay_endpoint)
-        self._req.send(json.dumps({"from_seq": from_seq}).encode())
+        with contextlib.suppress(zmq.Again):  # no peer (a failed CURVE handshake): asked again
+            self._req.send(json.dumps({"from_seq": from_seq}).encode(), zmq.NOBLOCK)
         self._asked_at = time.monotonic()
 
     def _receive_replay(self, reply: bytes) -> None:

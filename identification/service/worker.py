@@ -369,7 +369,10 @@ class Worker:
             self._security.connect(self._req, self._replay, "replay")
             self._req.connect(self._replay)
             self._poller.register(self._req, zmq.POLLIN)
-        self._req.send(json.dumps({"from_seq": from_seq}).encode())
+        try:  # never block the loop: a REQ whose CURVE handshake failed has no peer to send to
+            self._req.send(json.dumps({"from_seq": from_seq}).encode(), zmq.NOBLOCK)
+        except zmq.Again:  # waited out and asked again, as an unanswered request
+            logger.info("the replay %s took no request (do the keys match?)", self._replay)
         self._req_sent = time.monotonic()
         self._req_waiting = True
 
