@@ -199,8 +199,7 @@ def recorded_identification(args: argparse.Namespace) -> dict | None:
         return None
     document = read_identification(args.prior, "--prior")
     made_of = set(document.get("combustion_variation") or {})
-    given = {str(path) for path in args.after}
-    if made_of != given:
+    if {Path(name).resolve() for name in made_of} != {Path(p).resolve() for p in args.after}:
         print(
             f"note: --prior {args.prior} was identified from other recordings than --after's "
             f"({', '.join(sorted(made_of)) or 'none named'}): its intervals do not confirm "

@@ -13,7 +13,8 @@ at either optimum cannot see.
 A profile-likelihood interval (95 %, about two sigma: what a target at
 :data:`~dtid.identification.planning.design.SIGMAS` sigma asks of) therefore has the last
 word on a target the prediction says is met: the target is **confirmed** when the interval is
-closed on both sides and its wider side, relative to the estimate, lies within the target.
+closed on both sides and its wider side from the estimate, relative to the value the precision
+was predicted for (the estimate but where that is near 0), lies within the target.
 Where it is not, the target stays unmet, and where the interval is closed the next test is
 planned for the linearised prediction scaled by what the interval showed it to be off by
 (:attr:`IntervalCheck.planning_target_percent`; an open interval reaches the search's bound,

@@ -687,10 +687,10 @@ def recommend_confirmed(
     identification: Mapping[str, Any] | None,
     **limits: Any,
 ) -> Recommendation:
-    """:func:`recommend`, with each target the prediction says the recorded runs meet checked
-    against their identification's profile interval
-    (:mod:`dtid.identification.planning.confirmation`): where the interval is wider, the test is
-    planned for the prediction scaled by the factor it was off by, and the target stays unmet.
+    """:func:`recommend`, with each target checked against the recorded runs' profile interval
+    (:mod:`dtid.identification.planning.confirmation`): a target the interval does not confirm
+    stays unmet, and where a closed interval is wider than the prediction the test is planned
+    for the prediction scaled by the factor it was off by.
 
     Parameters
     ----------
