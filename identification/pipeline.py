@@ -53,6 +53,7 @@ from dtid.identification.search.parameterization import (
 )
 from dtid.identification.search.start_values import start_thetas
 from dtid.identification.uncertainty.profile import THRESHOLD, Profile, profile, with_structure
+from dtid.identification.uncertainty.target_test import TargetTest, target_test
 from dtid.jsonfile import finite, write_json
 from dtid.simulator.parameters import UNITS, DrivetrainParameters
 
@@ -252,8 +253,11 @@ class IdentificationReport:
     parameterization
         The search box and the values held (to score or refine other sets in it).
     restart
-        Where the search was restarted from a profile that fitted better, None when no profile
-        beat it.
+        Where the search was restarted from a profile (or a target test) that fitted better,
+        None when none beat it.
+    target_tests
+        The likelihood-ratio test at each tested target's ends, by parameter name (empty when
+        none was asked for).
     """
 
     identification: Identification
@@ -266,6 +270,7 @@ class IdentificationReport:
     inseparable: Mapping[str, str] = dataclasses.field(default_factory=dict)
     parameterization: Parameterization | None = None
     restart: SearchRestart | None = None
+    target_tests: Mapping[str, TargetTest] = dataclasses.field(default_factory=dict)
 
     def validated(self, selection: RunSelection) -> IdentificationReport:
         """The report with the validation NRMSE of the identified parameters on these runs, the
@@ -434,6 +439,7 @@ class IdentificationReport:
                 }
                 for name, prof in self.profiles.items()
             },
+            "target_tests": {name: test.as_dict() for name, test in self.target_tests.items()},
             "curves": self.curves() if self.fit else [],
         }
 
@@ -562,11 +568,16 @@ def identify_runs(
     span: float | None = None,
     profile_map: ProfileMap | None = None,
     warm_starts: Sequence[Mapping[str, float]] = (),
+    target_widths: Callable[[Mapping[str, float]], Mapping[str, float]] | None = None,
 ) -> IdentificationReport:
     """Identify from held-out identification runs and profile; no validation yet.
 
     See :func:`run_identification` for the parameters; :meth:`IdentificationReport.validated`
-    adds the validation.
+    adds the validation. ``target_widths`` gives, from the identified setup-4 values, the
+    half-width of each target to test (SI units, by name): each free parameter named that is
+    not profiled gets the likelihood-ratio test at the estimate less and plus it
+    (:mod:`dtid.identification.uncertainty.target_test`, an adaptive campaign's cheaper check
+    than a profile).
     """
     fixed = dict(fixed or {})
     operating = {name: fixed.pop(name) for name in OPERATING_POINT if name in fixed}
@@ -615,21 +626,18 @@ def identify_runs(
     for reason in dict.fromkeys(reasons.values()):  # once per coupling
         logger.warning("not identifiable from these data: %s", reason)
     profiles: dict[str, Profile] = {}
+    measured_db = [e.drv_db for e in selection.estimates()]
+    objective = Objective(
+        par,
+        [t.model_test(runs) for t, runs in zip(tests, ident, strict=True)],
+        [[t.estimates[i].drv_db for i in runs] for t, runs in zip(tests, ident, strict=True)],
+    )
+    # the profiles and target tests run on the cheaper objectives of the search's stages 1 and 2
+    polish = objective.replacing(realizations=settings.polish_realizations)
+    coarse = objective.replacing(realizations=settings.global_realizations)
     if profile_points:
-        measured_db = [e.drv_db for e in selection.estimates()]
-        objective = Objective(
-            par,
-            [t.model_test(runs) for t, runs in zip(tests, ident, strict=True)],
-            [[t.estimates[i].drv_db for i in runs] for t, runs in zip(tests, ident, strict=True)],
-        )
-        one = functools.partial(  # on the cheaper objectives of the search's stages 1 and 2
-            _profile_one,
-            objective.replacing(realizations=settings.polish_realizations),
-            objective.replacing(realizations=settings.global_realizations),
-            measured_db,
-            result.unit,
-            profile_points,
-            settings.seed,
+        one = functools.partial(
+            _profile_one, polish, coarse, measured_db, result.unit, profile_points, settings.seed
         )
         if profile_map is None:
             for step, name in enumerate(par.free):
@@ -638,8 +646,24 @@ def identify_runs(
                 profiles[name] = one(name)
         else:
             profiles = dict(zip(par.free, profile_map(one, list(par.free)), strict=True))
+    half_widths = {
+        name: width
+        for name, width in (target_widths(result.theta) if target_widths else {}).items()
+        if name in par.free and name not in profiles
+    }
+    tested: dict[str, TargetTest] = {}
+    for step, (name, width) in enumerate(half_widths.items()):
+        if progress:
+            progress("target test", step + 1, len(half_widths), result.objective)
+        tested[name] = target_test(
+            polish, measured_db, name, result.unit, width, settings.seed, coarse
+        )
     restart = None
-    beaten = [p for p in profiles.values() if p.beats_estimate and p.minimum_unit is not None]
+    beaten = [
+        p
+        for p in [*profiles.values(), *(t.profile for t in tested.values())]
+        if p.beats_estimate and p.minimum_unit is not None
+    ]
     if beaten:  # a profile found a better fit than the search: go on from there
         lowest = min(beaten, key=lambda p: float(np.min(p.objective)))
         assert lowest.minimum_unit is not None
@@ -669,6 +693,7 @@ def identify_runs(
         inseparable=reasons,
         parameterization=par,
         restart=restart,
+        target_tests=tested,
     )
 
 

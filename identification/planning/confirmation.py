@@ -19,6 +19,12 @@ Where it is not, the target stays unmet, and where the interval is closed the ne
 planned for the linearised prediction scaled by what the interval showed it to be off by
 (:attr:`IntervalCheck.planning_target_percent`; an open interval reaches the search's bound,
 which says nothing of the factor).
+
+An identification without a parameter's profile may hold its target test instead
+(:mod:`dtid.identification.uncertainty.target_test`, the worker's in an adaptive campaign: the
+likelihood-ratio test at the target's two ends, a sixth of a profile's cost): it confirms the
+target when both ends are rejected, and where one is not, its interval is extrapolated beyond
+it, which sizes the next round and never confirms.
 """
 
 from __future__ import annotations
@@ -28,6 +34,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from dtid.errors import ConfigError
+
+PROFILE = "profile"
+TARGET_TEST = "target test"
 
 
 @dataclass(frozen=True)
@@ -55,6 +64,10 @@ class IntervalCheck:
     predicted_percent
         The linearised prediction for the runs recorded, % at two sigma (the worst vehicle
         planned for).
+    method
+        Where the interval comes from: ``profile`` (the parameter's profile) or ``target
+        test`` (the likelihood-ratio test at the target's ends; a side beyond an end not
+        rejected is extrapolated).
     """
 
     name: str
@@ -64,6 +77,7 @@ class IntervalCheck:
     box: tuple[float, float]
     target_percent: float
     predicted_percent: float
+    method: str = PROFILE
 
     @property
     def closed(self) -> bool:
@@ -104,8 +118,13 @@ class IntervalCheck:
             self.target_percent,
             self.predicted_percent,
         )
+        source = (
+            "profile interval"
+            if self.method == PROFILE
+            else "interval by the likelihood-ratio test at the target's ends"
+        )
         span = (
-            f"its 95 % profile interval {lower} to {upper} reaches {width:.1f} % from the "
+            f"its 95 % {source} {lower} to {upper} reaches {width:.1f} % from the "
             f"estimate {self.estimate:.4g}" + ("" if self.closed else " (open: at least that far)")
         )
         beyond = f"wider than the target of {target:g} %" if width > target else "not closed"
@@ -130,6 +149,7 @@ class IntervalCheck:
             "target_percent": self.target_percent,
             "predicted_percent": round(self.predicted_percent, 2),
             "confirms": self.confirms,
+            "method": self.method,
         }
 
 
@@ -140,12 +160,13 @@ def interval_checks(
     reference: Mapping[str, float],
 ) -> tuple[IntervalCheck, ...]:
     """Each targeted parameter's check, from an identification's JSON document (``dtid
-    identify --json``, the worker's ``result``); none where it holds no profiles.
+    identify --json``, the worker's ``result``): from its profile, else from its target test;
+    none where it holds neither.
 
     Parameters
     ----------
     identification
-        The document: ``parameters``, ``intervals`` and ``profiles`` are read.
+        The document: ``parameters``, ``intervals``, ``profiles`` and ``target_tests`` are read.
     targets
         Targets by parameter name, % at two sigma.
     predicted_percent
@@ -162,19 +183,26 @@ def interval_checks(
     """
     intervals = identification.get("intervals") or {}
     profiles = identification.get("profiles") or {}
+    tests = identification.get("target_tests") or {}
     values = identification.get("parameters") or {}
     checks = []
     for name, target in targets.items():
-        if name not in intervals or name not in predicted_percent or name not in reference:
+        if name not in predicted_percent or name not in reference:
             continue
         try:
-            grid = [float(v) for v in profiles[name]["values"]]
+            if name in intervals:
+                method, ends = PROFILE, intervals[name]
+                grid = [float(v) for v in profiles[name]["values"]]
+            elif name in tests:
+                method, ends = TARGET_TEST, tests[name]["interval"]
+                grid = [float(v) for v in tests[name]["bounds"]]
+            else:
+                continue
             estimate = float(values[name])
-            ends = intervals[name]
         except (KeyError, TypeError, ValueError) as error:
             raise ConfigError(
-                f"the identification's interval of {name} has no value or profile beside it "
-                f"({error}); give the JSON dtid identify wrote"
+                f"the identification's interval of {name} has no value, profile or target test "
+                f"beside it ({error}); give the JSON dtid identify wrote"
             ) from None
         checks.append(
             IntervalCheck(
@@ -185,6 +213,7 @@ def interval_checks(
                 (min(grid), max(grid)),
                 float(target),
                 float(predicted_percent[name]),
+                method,
             )
         )
     return tuple(checks)

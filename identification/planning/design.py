@@ -584,14 +584,23 @@ def recorded_designs(tests: Sequence[MeasuredTest]) -> tuple[list[Design], list[
     return run_designs(tests, identifying), held_out
 
 
+def planning_floor(name: str) -> float:
+    """The least value a precision of ``name`` is planned relative to, SI units:
+    :data:`PRIOR_FLOOR` of its passenger-car range's top for a stiffness, damping, friction or
+    free play, 0 for the others."""
+    if name in ("x1", "x12") or name not in PASSENGER_CAR_RANGES:
+        return 0.0
+    return PRIOR_FLOOR * PASSENGER_CAR_RANGES[name][1]
+
+
 def planning_prior(prior: DrivetrainParameters) -> tuple[DrivetrainParameters, list[str]]:
-    """The prior with each stiffness, damping, friction and free play at least
-    :data:`PRIOR_FLOOR` of its passenger-car range's top, and a note for each raised."""
+    """The prior with each value at least its :func:`planning_floor`, and a note for each
+    raised."""
     changes, notes = {}, []
-    for name, (_, top) in PASSENGER_CAR_RANGES.items():
-        if name in ("x1", "x12"):
+    for name in PASSENGER_CAR_RANGES:
+        floor = planning_floor(name)
+        if floor == 0.0:
             continue
-        floor = PRIOR_FLOOR * top
         value = getattr(prior, name)
         if value < floor:
             changes[name] = floor
@@ -717,6 +726,27 @@ def recommend_confirmed(
     if planning != dict(targets):
         recommendation = recommend(info, planning, **limits)
     return dataclasses.replace(recommendation, intervals=checks)
+
+
+def target_half_widths(
+    theta: Mapping[str, float], targets: Mapping[str, float]
+) -> dict[str, float]:
+    """Each target's half-width around identified values, SI units: the target (% at
+    :data:`SIGMAS` sigma) of the value its precision is planned relative to (the value, at
+    least its :func:`planning_floor`), for the targets ``theta`` holds.
+
+    Parameters
+    ----------
+    theta
+        Identified values by setup-4 name, SI units.
+    targets
+        Targets by name, %.
+    """
+    return {
+        name: target / 100.0 * max(float(theta[name]), planning_floor(name))
+        for name, target in targets.items()
+        if name in theta
+    }
 
 
 def recorded_spread(info: PlanInformation, recorded: Sequence[Design]) -> dict[str, float]:

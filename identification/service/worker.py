@@ -126,7 +126,11 @@ class WorkerOptions:
     settings
         Search budget and seed (``dtid identify``'s defaults).
     profile_points
-        Grid points per profile; 0 skips the profiles (``dtid identify``'s default: 5).
+        Grid points per profile; 0 skips the profiles (``dtid identify``'s default: 5). In an
+        adaptive campaign's round the targets are checked by the likelihood-ratio test at their
+        ends instead (:mod:`dtid.identification.uncertainty.target_test`; a whole profile of
+        every parameter over a campaign's growing runs took 44 minutes after the trial's second
+        round), and 0 skips that too.
     prior
         Parameter set the bounds centre on; the reference vehicle by default.
     vehicle
@@ -612,13 +616,15 @@ class Worker:
                     ]
                     session.before = self._previous_round(Path(logs[-1]))
                 selection = live.identification_selection(data, session.earlier)
+                widths = _campaign_widths(live.campaign) if options.profile_points else None
                 report = identify_runs(
                     selection,
                     self.prior,
                     settings=options.settings,
-                    profile_points=options.profile_points,
+                    profile_points=0 if widths else options.profile_points,
                     progress=progress,
                     warm_starts=[session.before[0]] if session.before else (),
+                    target_widths=widths,
                 )
             except BaseException as error:  # handed to the loop, which reports it
                 session.outcome.append(error)
@@ -894,6 +900,27 @@ class Worker:
                 self._pub.send_multipart([topic.encode(), body.encode()])
             for callback in self.listeners:
                 callback(topic, document)
+
+
+def _campaign_widths(
+    campaign: Mapping[str, Any] | None,
+) -> Callable[[Mapping[str, float]], Mapping[str, float]] | None:
+    """In a campaign round, what the identification's target tests are given: from the
+    identified values, each campaign target's half-width (SI units); None outside a campaign.
+
+    Raises
+    ------
+    ConfigError
+        If the campaign's targets do not parse.
+    """
+    if campaign is None:
+        return None
+    from dtid.identification.planning.design import parse_targets, target_half_widths
+
+    targets = parse_targets(
+        [f"{name}={value}" for name, value in (campaign.get("targets") or {}).items()]
+    )
+    return lambda theta: target_half_widths(theta, targets)
 
 
 def _read_json(path: Path) -> dict[str, Any]:

@@ -479,7 +479,7 @@ def profile(
     search_objective: Objective | None = None,
     steps: int = 4,
 ) -> Profile:
-    """Profile one free parameter around an identified optimum.
+    """Profile one free parameter around an identified optimum, over its whole box.
 
     Parameters
     ----------
@@ -495,6 +495,66 @@ def profile(
         The optimum, normalised free values.
     points
         Grid points across the parameter's bounds.
+    generations, popsize, polish_evaluations, seed, refine, search_objective, steps
+        As :func:`profile_at`.
+
+    Returns
+    -------
+    Profile
+        As :func:`profile_at` found it, ``no`` without an interval where it is flat
+        (:func:`judged_flat`).
+    """
+    result = profile_at(
+        objective,
+        measured_db,
+        name,
+        optimum_unit,
+        np.linspace(0.0, 1.0, points),
+        generations,
+        popsize,
+        polish_evaluations,
+        seed,
+        refine,
+        search_objective,
+        steps,
+    )
+    stochastic = any(t.combustion_variation > 0 for t in objective.tests)
+    assert result.minimum_unit is not None
+    k = list(objective.parameterization.free).index(name)
+    return judged_flat(result, stochastic, at_bound=result.minimum_unit[k] in (0.0, 1.0))
+
+
+def profile_at(
+    objective: Objective,
+    measured_db: Sequence[np.ndarray],
+    name: str,
+    optimum_unit: np.ndarray,
+    grid: np.ndarray,
+    generations: int = 8,
+    popsize: int = 4,
+    polish_evaluations: int = 120,
+    seed: int = 0,
+    refine: int = 4,
+    search_objective: Objective | None = None,
+    steps: int = 4,
+) -> Profile:
+    """The profile of one free parameter at given values, the statistic's own verdict (no
+    flatness rule: :func:`profile` applies it to a whole box's profile).
+
+    Parameters
+    ----------
+    objective
+        Eq. (17) over the identification runs (as
+        :func:`dtid.identification.search.identify.identify` builds it).
+    measured_db
+        The measured |G_DRV| in dB of every identification run, in the objective's order (for the
+        likelihood statistic).
+    name
+        Free parameter to profile.
+    optimum_unit
+        The optimum, normalised free values.
+    grid
+        The values to evaluate, normalised to the parameter's bounds (0 and 1 its ends).
     generations, popsize, polish_evaluations, seed
         Budget and seed of each re-optimisation.
     refine
@@ -582,7 +642,7 @@ def profile(
         unit = np.insert(rest, k, u)
         evaluated[u], solutions[u] = (value, curves, replicated(unit, ssr)), rest
 
-    grid = np.linspace(0.0, 1.0, points)
+    grid = np.asarray(grid, dtype=float)
     for u in sorted(grid[grid > best_u]):  # outward from the optimum on each side
         evaluate(float(u))
     for u in sorted(grid[grid < best_u], reverse=True):
@@ -666,7 +726,7 @@ def profile(
     )
     on_grid = np.isin(grid_unit, grid)
     lowest_u = minimum()
-    result = Profile(
+    return Profile(
         name,
         values,
         best_objective,
@@ -680,7 +740,6 @@ def profile(
         lowest + float(optimum_unit[k]) * (highest - lowest),
         np.insert(solutions[lowest_u], k, lowest_u),
     )
-    return judged_flat(result, stochastic, at_bound=lowest_u in (0.0, 1.0))
 
 
 def judged_flat(result: Profile, stochastic: bool, at_bound: bool) -> Profile:

@@ -1,0 +1,182 @@
+"""Does a parameter's 95 % interval lie within a target? The likelihood-ratio test at its ends.
+
+A campaign (:mod:`dtid.acquisition.campaign`) stops when every target is met, and a target is
+met only where the recorded runs' 95 % interval confirms it
+(:mod:`dtid.identification.planning.confirmation`). A whole profile answers that, and more than
+that: it walks the parameter's box (five grid points, the bisection of both threshold
+crossings, the neighbours' solutions offered to every point), each point a re-optimisation of
+eq. (17) over every run recorded. Its cost grows with the campaign's runs: after the campaign
+trial's second round (13 runs, truth 5; 2026-11-29) the worker's profiles took 44 minutes on a
+2-core host, and a third round's would have passed the daemon's wait for the plan
+(``[test] replan_wait_s``, an hour).
+
+The question asked is narrower: is the interval within +-target of the estimate? For a
+connected interval that is the likelihood-ratio test of the two values at the target's ends:
+the interval lies within them exactly when both are rejected. So each targeted parameter is
+re-optimised at those two values only (:func:`dtid.identification.uncertainty.profile.profile_at`
+with that grid and no bisection: the same re-optimisation, statistic, Monte Carlo margin and
+neighbours' smoothing as a profile), two points where a profile evaluates about thirteen.
+
+Where an end is not rejected, the interval reaches beyond it, and how far is read off the
+statistic as a profile reads its crossings, linear in its root (the profile t of Bates and
+Watts, 1988): ``estimate + (end - estimate) * sqrt(threshold / lambda_end)``. There it is an
+extrapolation, the profile assumed quadratic beyond the end, and said so (``extrapolated``);
+it only sizes the next round (the factor the linearised prediction was off by), it never
+confirms a target. What the test does not see: a second valley beyond an end (a disjoint
+interval), which a whole profile's grid sees only where a grid point falls into it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from dtid.identification.search.identify import Objective
+from dtid.identification.uncertainty.profile import THRESHOLD, Profile, profile_at
+from dtid.jsonfile import json_number
+
+
+@dataclass(frozen=True)
+class TargetTest:
+    """The likelihood-ratio test of a parameter at the two ends of its target.
+
+    Attributes
+    ----------
+    name
+        Setup-4 parameter name.
+    estimate
+        The search's optimum, SI units.
+    ends
+        The values tested, SI units: the estimate less and plus the target's half-width, each
+        clipped to the search's bounds (None: the estimate is at that bound, nothing to test).
+    bounds
+        The search's bounds, SI units.
+    profile
+        The three-point profile the test read (the ends and the optimum): statistic, margin,
+        and whether an end fitted better than the optimum
+        (:attr:`~dtid.identification.uncertainty.profile.Profile.beats_estimate`).
+    """
+
+    name: str
+    estimate: float
+    ends: tuple[float | None, float | None]
+    bounds: tuple[float, float]
+    profile: Profile
+
+    def _at(self, end: float | None) -> tuple[float, float]:
+        """The statistic and its margin at an end (NaN where it was not tested)."""
+        if end is None:
+            return float("nan"), float("nan")
+        i = int(np.argmin(np.abs(self.profile.values - end)))
+        return float(self.profile.statistic[i]), float(self.profile.margin[i])
+
+    @property
+    def statistic(self) -> tuple[float, float]:
+        """The likelihood-ratio statistic at each end (chi-square scale of the threshold)."""
+        return self._at(self.ends[0])[0], self._at(self.ends[1])[0]
+
+    @property
+    def rejected(self) -> tuple[bool, bool]:
+        """Whether each end is rejected at 95 % (its statistic above the threshold and the
+        Monte Carlo margin)."""
+        ends = (self._at(end) for end in self.ends)
+        return tuple(bool(stat > THRESHOLD + margin) for stat, margin in ends)  # type: ignore[return-value]
+
+    @property
+    def confirmed(self) -> bool:
+        """Whether both ends are rejected: the 95 % interval lies within the target."""
+        return all(self.rejected)
+
+    @property
+    def extrapolated(self) -> tuple[bool, bool]:
+        """Whether each side of :attr:`interval` is extrapolated beyond the end tested."""
+        return tuple(  # type: ignore[return-value]
+            end is not None and not rejected
+            for end, rejected in zip(self.ends, self.rejected, strict=True)
+        )
+
+    @property
+    def interval(self) -> tuple[float | None, float | None]:
+        """The 95 % interval as the test sizes it, SI units: where an end is rejected, the
+        crossing between the minimum and it (as a profile reads it); where not, extrapolated
+        linearly in the statistic's root beyond it; None where that passes the bounds, where
+        the statistic at the end is 0 or where nothing was tested."""
+        values = self.profile.values
+        centre = float(values[int(np.argmin(self.profile.statistic))])
+        sides: list[float | None] = []
+        for end, read in zip(self.ends, self.profile.interval, strict=True):
+            stat, margin = self._at(end)
+            lam = stat - margin
+            if end is None or not lam > 0.0:
+                sides.append(None)
+            elif lam > THRESHOLD:
+                sides.append(read)
+            else:
+                reach = centre + (end - centre) * float(np.sqrt(THRESHOLD / lam))
+                inside = self.bounds[0] <= reach <= self.bounds[1]
+                sides.append(reach if inside else None)
+        return sides[0], sides[1]
+
+    def as_dict(self) -> dict[str, object]:
+        """The identification JSON's ``target_tests`` entry."""
+        lower, upper = self.interval
+        return {
+            "estimate": self.estimate,
+            "ends": list(self.ends),
+            "statistic": [json_number(s) for s in self.statistic],
+            "rejected": list(self.rejected),
+            "interval": {"lower": lower, "upper": upper},
+            "extrapolated": list(self.extrapolated),
+            "bounds": list(self.bounds),
+            "confirmed": self.confirmed,
+        }
+
+
+def target_test(
+    objective: Objective,
+    measured_db: Sequence[np.ndarray],
+    name: str,
+    optimum_unit: np.ndarray,
+    half_width: float,
+    seed: int = 0,
+    search_objective: Objective | None = None,
+) -> TargetTest:
+    """Test a parameter at the estimate less and plus ``half_width``.
+
+    Parameters
+    ----------
+    objective, measured_db, name, optimum_unit, seed, search_objective
+        As :func:`dtid.identification.uncertainty.profile.profile`.
+    half_width
+        The target's half-width, SI units of the parameter (positive).
+
+    Raises
+    ------
+    ValueError
+        If ``half_width`` is not positive.
+    """
+    if not half_width > 0.0:
+        raise ValueError(f"the target's half-width of {name} must be positive, got {half_width}")
+    par = objective.parameterization
+    k = list(par.free).index(name)
+    lowest, highest = par.bounds_of(name)
+    span = highest - lowest
+    estimate = lowest + float(optimum_unit[k]) * span
+    ends = tuple(
+        None if np.isclose(estimate, bound) else float(np.clip(value, lowest, highest))
+        for value, bound in ((estimate - half_width, lowest), (estimate + half_width, highest))
+    )
+    grid = np.array([(end - lowest) / span for end in ends if end is not None])
+    prof = profile_at(
+        objective,
+        measured_db,
+        name,
+        optimum_unit,
+        grid,
+        seed=seed,
+        refine=0,
+        search_objective=search_objective,
+    )
+    return TargetTest(name, estimate, ends, (lowest, highest), prof)  # type: ignore[arg-type]
