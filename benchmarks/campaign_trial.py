@@ -5,16 +5,17 @@ worker), without the bus: round 1 is the paper's test, recorded on the truth (on
 identification trial's random drivetrains with its own idle loop, ECU timing, engine and noise,
 which the model side does not share: it reads the loop from each recording and is told the
 engine); after each round every round so far is identified together by the whole search
-(with the worker's default profiles, ``--profile-points 5``; the previous round's optimum
+(with the worker's check of the targets, the likelihood-ratio test at their ends, or with
+``--checks profiles`` whole profiles of ``--profile-points 5``; the previous round's optimum
 polished too), the next round is planned at what was identified with every recorded run counted
 in and the budget left, as the worker plans it (a target is met only where its profile interval
-confirms the prediction: :mod:`dtid.identification.planning.confirmation`), the rounds are
-compared (:mod:`dtid.identification.planning.agreement`) and
-the fit tested (:func:`dtid.identification.diagnosis.mismatch.adequacy`); until the plan says
-the targets are met (``targets_met``, or ``inconsistent`` where the parameters jumped from the
-previous round, ``inadequate`` where the model does not explain the recordings) or the next
-round does not fit. The errors of the last
-identification against the truth, next to the targets, say whether the campaign kept its word.
+or target test confirms the prediction: :mod:`dtid.identification.planning.confirmation`), the
+rounds are compared (:mod:`dtid.identification.planning.agreement`) and the fit tested
+(:func:`dtid.identification.diagnosis.mismatch.adequacy`); until the plan says the targets are
+met (``targets_met``, or ``inconsistent`` where the parameters jumped from the previous round,
+``inadequate`` where the model does not explain the recordings) or the next round does not
+fit. The errors of the last identification against the truth, next to the targets, say whether
+the campaign kept its word.
 
     PYTHONPATH=. python benchmarks/campaign_trial.py --truth 2 \
         --json benchmarks/results/campaign_trial/truth2.json
@@ -42,6 +43,7 @@ from dtid.identification.planning.design import (
     predict,
     run_designs,
     shortest_test_s,
+    target_half_widths,
 )
 from dtid.identification.planning.information import RESOLUTION_HZ
 from dtid.identification.planning.spread import DEFAULT_VEHICLES, RECORDED
@@ -74,8 +76,16 @@ def main() -> None:
         help="profile grid points of each round's identification (dtid worker's default: 5; 0: "
         "no intervals, the prediction alone decides, as before 2026-11-29)",
     )
+    parser.add_argument(
+        "--checks",
+        choices=("target-tests", "profiles"),
+        default="target-tests",
+        help="how each round's targets are checked: the likelihood-ratio test at their ends "
+        "(the worker in a campaign, since 2026-11-29) or whole profiles (before)",
+    )
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
+    tested = args.profile_points > 0 and args.checks == "target-tests"
 
     truth, vehicle = draw_truth(args.truth), draw_vehicle(args.truth)
     known = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
@@ -93,10 +103,16 @@ def main() -> None:
             tests,
             reference_parameters(),
             identify_amplitudes=identify_nm,
-            profile_points=args.profile_points,
+            profile_points=0 if tested else args.profile_points,
             warm_starts=[before[0]] if before else (),
+            target_widths=(
+                (lambda theta: target_half_widths(theta, DEFAULT_TARGETS_PERCENT))
+                if tested
+                else None
+            ),
         )
         seconds = time.perf_counter() - began
+        checks_s = seconds - report.identification.seconds
         fit = report.fit
         assert fit is not None and report.validation is not None
         held_out = amplitude_levels(
@@ -133,6 +149,7 @@ def main() -> None:
                 "chirps": len(plan.chirps),
                 "duration_s": plan.duration_s,
                 "identification_s": round(seconds, 1),
+                "checks_s": round(checks_s, 1),
                 "errors": errors,
                 "next": design.as_dict(setpoint) if design else None,
                 "unmet_next": [u.name for u in recommendation.unmet],
@@ -147,7 +164,7 @@ def main() -> None:
         missed = [n for n in PRECISION_NAMES if 100 * abs(errors[n]) > DEFAULT_TARGETS_PERCENT[n]]
         print(
             f"round {number}: {plan.end_s:.0f} s of test ({spent:.0f} s in all), identified in "
-            f"{seconds:.0f} s; outside the targets: "
+            f"{seconds:.0f} s ({checks_s:.0f} s of it checking the targets); outside the targets: "
             + (", ".join(f"{n} {100 * errors[n]:+.1f} %" for n in missed) or "none")
             + f"; next: {design if design else 'none (the plan says the targets are met)'}"
             + (f"; from the previous round: {agreed.summary()}" if agreed else "")

@@ -479,6 +479,7 @@ def run_identification(
     span: float | None = None,
     profile_map: ProfileMap | None = None,
     warm_starts: Sequence[Mapping[str, float]] = (),
+    target_widths: Callable[[Mapping[str, float]], Mapping[str, float]] | None = None,
 ) -> IdentificationReport:
     """Identify from measured tests, profile every free parameter and validate.
 
@@ -512,6 +513,9 @@ def run_identification(
         Optima found before on part of these data (setup-4 values, e.g. an adaptive campaign's
         earlier round), polished whatever the global search made of them
         (:func:`dtid.identification.search.identify.identify`).
+    target_widths
+        From the identified setup-4 values, each target's half-width to test where a parameter
+        is not profiled (:func:`identify_runs`); None: none.
     """
     selection = identification_runs(tests, identify_amplitudes, resolution_hz)
     report = identify_runs(
@@ -525,6 +529,7 @@ def run_identification(
         span,
         profile_map,
         warm_starts,
+        target_widths,
     )
     return report.validated(validation_runs(tests, identify_amplitudes, resolution_hz))
 

@@ -458,3 +458,19 @@ def test_a_target_its_profile_interval_does_not_confirm_stays_unmet(
     assert check.name == "eps23" and not check.closed
     assert check.half_width_percent == pytest.approx(100.0)  # to the box's end, 2 x the value
     assert check.planning_target_percent == DEFAULT_TARGETS_PERCENT["eps23"]  # not scaled
+
+
+def test_a_campaign_round_tests_each_target_at_its_half_width() -> None:
+    """The worker's target tests in a campaign round: each target of the campaign (the rest at
+    their defaults) as a half-width around the identified value, a value near 0 replaced by the
+    one the plan is relative to (5 % of a passenger car's largest friction: 0.2 N*m); outside a
+    campaign, none."""
+    from dtid.identification.service.worker import _campaign_widths
+
+    assert _campaign_widths(None) is None
+    widths = _campaign_widths({"targets": {"c12": 2.0}})
+    assert widths is not None
+    got = widths({"c12": 300.0, "Tc12": 0.0, "x1": 0.4})
+    assert got == pytest.approx({"c12": 6.0, "Tc12": 0.2 * 0.2, "x1": 0.05 * 0.4})
+    with pytest.raises(ConfigError, match="eps99"):
+        _campaign_widths({"targets": {"eps99": 5.0}})

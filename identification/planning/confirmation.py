@@ -22,9 +22,9 @@ which says nothing of the factor).
 
 An identification without a parameter's profile may hold its target test instead
 (:mod:`dtid.identification.uncertainty.target_test`, the worker's in an adaptive campaign: the
-likelihood-ratio test at the target's two ends, a sixth of a profile's cost): it confirms the
-target when both ends are rejected, and where one is not, its interval is extrapolated beyond
-it, which sizes the next round and never confirms.
+likelihood-ratio test at the target's two ends, at a fraction of a profile's cost): it confirms
+the target when both ends are rejected, and where one is not, it follows the interval beyond
+that end to size the next round.
 """
 
 from __future__ import annotations
@@ -66,8 +66,8 @@ class IntervalCheck:
         planned for).
     method
         Where the interval comes from: ``profile`` (the parameter's profile) or ``target
-        test`` (the likelihood-ratio test at the target's ends; a side beyond an end not
-        rejected is extrapolated).
+        test`` (the likelihood-ratio test at the target's ends, followed beyond an end not
+        rejected).
     """
 
     name: str

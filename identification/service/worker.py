@@ -30,8 +30,9 @@ It binds its own PUB (``[pipeline] results``) and publishes, as two frames ``[to
 ``plan``
     With ``[worker] plan_follow_up = true``, after the result: ``session`` and the JSON document
     of ``dtid plan --prior identification.json --after LOG --json`` (the precision reached, the
-    follow-up test; a target is met only where the identification's profile intervals confirm
-    it, :mod:`dtid.identification.planning.confirmation`); also written to ``follow-up.json``
+    follow-up test; a target is met only where the identification's profile intervals, in a
+    campaign's round its target tests, confirm it,
+    :mod:`dtid.identification.planning.confirmation`); also written to ``follow-up.json``
     beside the log.
 
 The identification starts when the identification chirps are complete (and
@@ -753,8 +754,9 @@ class Worker:
         next round must fit in its budget left (at least the shortest test is planned, so the
         campaign sees how long the next round would be); a failure is published as a plan
         without a test and with the ``error``, so the campaign stops saying why. The result's
-        profile intervals (with ``profile_points`` > 0) confirm the targets the prediction says
-        are met, or keep them unmet (``intervals`` in the plan).
+        profile intervals or, in a campaign, its target tests (with ``profile_points`` > 0)
+        confirm the targets the prediction says are met, or keep them unmet (``intervals`` in
+        the plan).
         """
         from dtid.identification.planning.design import (
             DEFAULT_MAX_TIME_S,

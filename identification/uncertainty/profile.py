@@ -537,6 +537,7 @@ def profile_at(
     refine: int = 4,
     search_objective: Objective | None = None,
     steps: int = 4,
+    expand: int = 0,
 ) -> Profile:
     """The profile of one free parameter at given values, the statistic's own verdict (no
     flatness rule: :func:`profile` applies it to a whole box's profile).
@@ -566,6 +567,11 @@ def profile_at(
     steps
         Most Levenberg-Marquardt steps after each re-optimisation's Nelder-Mead polish, the held
         parameter fixed (:func:`dtid.identification.search.identify.levenberg_marquardt`).
+    expand
+        On a side of the minimum where no value is rejected, at most this many more points,
+        each twice as far from the minimum as the outermost so far (up to the bound), until
+        one is: a grid that ends inside the interval (a target test's) then still finds its
+        crossing, which the bisection then locates.
     """
     par: Parameterization = objective.parameterization
     free = list(par.free)
@@ -698,6 +704,13 @@ def profile_at(
     if others:
         smooth()
     best_u = minimum()
+    for side in (-1, 1):  # reach past a side's crossing where no point is rejected yet
+        for _ in range(expand):
+            us = [u for u in evaluated if (u - best_u) * side > 0]
+            outer = max(us, key=lambda u: abs(u - best_u), default=None)
+            if outer is None or outer in (0.0, 1.0) or any(rejected(u) for u in us):
+                break
+            evaluate(float(np.clip(best_u + 2.0 * (outer - best_u), 0.0, 1.0)))
     for side in (-1, 1):  # bisect each side's threshold crossing
         for _ in range(refine):
             us = sorted(u for u in evaluated if (u - best_u) * side > 0)
