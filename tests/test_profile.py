@@ -379,23 +379,10 @@ def test_a_profile_that_beats_the_search_restarts_it_there(
     the estimate is the restart's and ``search_restart`` says so (on the calibration trial's
     truth 14 the profile of d23 found such a basin, and the interval excluded the estimate)."""
     from dtid.identification import pipeline
-    from dtid.identification.search.identify import identify_from
 
     truth, measured = decoupled
-    theta = theta_from_parameters(truth)
-    fixed = {n: theta[n] for n in THETA_NAMES if n not in ("c12", "d12")}
-    stuck = {**theta, "c12": 1.4 * truth.c12}
-    no_budget = SearchSettings(polish_evaluations=1, final_evaluations=1, newton_iterations=0)
-
-    def search_stuck_off_the_optimum(tests, par, ident, valid, *args, **kwargs):
-        return identify_from(tests, par, ident, valid, stuck, no_budget)
-
-    monkeypatch.setattr(pipeline, "identify", search_stuck_off_the_optimum)
-    ident, _ = split_runs([measured])
-    cut = measured.estimates[-1].run.end_s
-    selection = pipeline.RunSelection((measured,), (tuple(ident[0]),), (cut,))
-    settings = SearchSettings(polish_evaluations=60, final_evaluations=60, newton_iterations=5)
-    report = pipeline.identify_runs(selection, truth, fixed, settings=settings, profile_points=5)
+    stuck, arguments = _search_stuck_at(1.4, truth, measured, monkeypatch)
+    report = pipeline.identify_runs(*arguments, profile_points=5)
     restart = report.restart
     assert restart is not None and restart.parameter in ("c12", "d12")
     assert restart.statistic > THRESHOLD
@@ -406,7 +393,7 @@ def test_a_profile_that_beats_the_search_restarts_it_there(
     assert report.as_dict()["search_restart"]["adopted"] is True
     from dtid.cli.commands.identify import print_report
 
-    print_report(report.as_dict(), fixed)
+    print_report(report.as_dict(), arguments[2])
     assert f"search restarted where the profile of {restart.parameter}" in capsys.readouterr().out
 
 
@@ -527,27 +514,11 @@ def test_a_target_test_that_fits_better_than_the_search_restarts_it(
     from json_schemas import validate
 
     from dtid.identification import pipeline
-    from dtid.identification.search.identify import identify_from
 
     truth, measured = decoupled
-    theta = theta_from_parameters(truth)
-    fixed = {n: theta[n] for n in THETA_NAMES if n not in ("c12", "d12")}
-    stuck = {**theta, "c12": 1.05 * truth.c12}
-    no_budget = SearchSettings(polish_evaluations=1, final_evaluations=1, newton_iterations=0)
-
-    def search_stuck_off_the_optimum(tests, par, ident, valid, *args, **kwargs):
-        return identify_from(tests, par, ident, valid, stuck, no_budget)
-
-    monkeypatch.setattr(pipeline, "identify", search_stuck_off_the_optimum)
-    ident, _ = split_runs([measured])
-    cut = measured.estimates[-1].run.end_s
-    selection = pipeline.RunSelection((measured,), (tuple(ident[0]),), (cut,))
-    settings = SearchSettings(polish_evaluations=60, final_evaluations=60, newton_iterations=5)
+    stuck, arguments = _search_stuck_at(1.05, truth, measured, monkeypatch)
     report = pipeline.identify_runs(
-        selection,
-        truth,
-        fixed,
-        settings=settings,
+        *arguments,
         profile_points=0,
         target_widths=lambda values: {"c12": values["c12"] - truth.c12, "J_sum": 1.0},
     )
@@ -559,3 +530,31 @@ def test_a_target_test_that_fits_better_than_the_search_restarts_it(
     document = report.as_dict()
     validate(document, "identification")
     assert document["target_tests"]["c12"]["estimate"] == pytest.approx(stuck["c12"], rel=0.02)
+
+
+def _search_stuck_at(
+    factor: float,
+    truth: DrivetrainParameters,
+    measured: MeasuredTest,
+    monkeypatch: pytest.MonkeyPatch,
+) -> tuple[dict, tuple]:
+    """The pipeline's search replaced by one that ends with c12 at ``factor`` times the truth
+    (c12 and d12 free, the rest held at the truth, clean data): the stuck values and the
+    positional arguments of :func:`identify_runs` (selection, prior, fixed, settings)."""
+    from dtid.identification import pipeline
+    from dtid.identification.search.identify import identify_from
+
+    theta = theta_from_parameters(truth)
+    fixed = {n: theta[n] for n in THETA_NAMES if n not in ("c12", "d12")}
+    stuck = {**theta, "c12": factor * truth.c12}
+    no_budget = SearchSettings(polish_evaluations=1, final_evaluations=1, newton_iterations=0)
+
+    def search_stuck_off_the_optimum(tests, par, ident, valid, *args, **kwargs):
+        return identify_from(tests, par, ident, valid, stuck, no_budget)
+
+    monkeypatch.setattr(pipeline, "identify", search_stuck_off_the_optimum)
+    ident, _ = split_runs([measured])
+    cut = measured.estimates[-1].run.end_s
+    selection = pipeline.RunSelection((measured,), (tuple(ident[0]),), (cut,))
+    settings = SearchSettings(polish_evaluations=60, final_evaluations=60, newton_iterations=5)
+    return stuck, (selection, truth, fixed, None, settings)

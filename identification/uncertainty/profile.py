@@ -483,19 +483,11 @@ def profile(
 
     Parameters
     ----------
-    objective
-        Eq. (17) over the identification runs (as
-        :func:`dtid.identification.search.identify.identify` builds it).
-    measured_db
-        The measured |G_DRV| in dB of every identification run, in the objective's order (for the
-        likelihood statistic).
-    name
-        Free parameter to profile.
-    optimum_unit
-        The optimum, normalised free values.
     points
         Grid points across the parameter's bounds.
-    generations, popsize, polish_evaluations, seed, refine, search_objective, steps
+    objective, measured_db, name, optimum_unit, generations, popsize, polish_evaluations
+        As :func:`profile_at`.
+    seed, refine, search_objective, steps
         As :func:`profile_at`.
 
     Returns
