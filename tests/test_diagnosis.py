@@ -370,7 +370,8 @@ def test_a_trend_bands_excess_is_the_residuals_running_mean_never_beyond_it():
     z = measured / scatter
     residual = RunResidual("r", "fit", "drv", 5.0, f, measured, np.zeros(n), scatter, z, z)
     excess = trend_db(residual)
-    assert np.nanmin(excess) >= -9.0 and np.nanmax(excess) <= 7.0
+    # within the range to rounding (numpy 2.4's sums put a mean of 7.0s at 7.000000000000001)
+    assert np.nanmin(excess) >= -9.0 - 1e-9 and np.nanmax(excess) <= 7.0 + 1e-9
     width = round(TREND_WINDOW * n)
     i = 60  # a window of equal weights: the plain mean of its bins
     window = slice(i - width // 2, i - width // 2 + width)
