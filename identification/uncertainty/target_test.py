@@ -83,11 +83,6 @@ class TargetTest:
         return float(self.profile.statistic[i]), float(self.profile.margin[i])
 
     @property
-    def statistic(self) -> tuple[float, float]:
-        """The likelihood-ratio statistic at each end (chi-square scale of the threshold)."""
-        return self._at(self.ends[0])[0], self._at(self.ends[1])[0]
-
-    @property
     def rejected(self) -> tuple[bool, bool]:
         """Whether each end is rejected at 95 % (its statistic above the threshold and the
         Monte Carlo margin)."""
