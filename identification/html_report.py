@@ -6,9 +6,10 @@ images in ``data:`` URLs, the style sheet is inline, and there is no script. Sec
 1. the test: per recording its format, frames, time span, integrity, the session's metadata
    (source, plan, how the test ended, the health counters) and the chirp runs found;
 2. the frequency responses of every run, as the paper's Fig. 3;
-3. the identification: the parameter table with units, 95 % intervals and verdicts, the NRMSEs,
-   the fit as Fig. 6 and the likelihood profiles as Fig. 5 (from ``identification.json``'s
-   ``curves`` and ``profiles``);
+3. the identification: the parameter table with units, 95 % intervals and verdicts (and, for
+   an adaptive campaign's round, each target test's outcome), the NRMSEs, the fit as Fig. 6
+   and the likelihood profiles as Fig. 5 (from ``identification.json``'s ``curves``,
+   ``profiles`` and ``target_tests``);
 4. the diagnosis, when there is one: its verdict, the mismatch bands, the mechanisms accepted,
    left unexplained or indistinguishable, and its figure (the PNG beside ``diagnosis.json``);
 5. versions: the software that made the report and the recordings, the DBC and signal map
@@ -371,26 +372,33 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
     intervals = document.get("intervals", {})
     verdicts = document.get("identifiable", {})
     fixed = document.get("fixed", {})
+    tests = document.get("target_tests") or {}
+    headers = ["parameter", "value", "unit", "95 % interval", "identifiable"]
+    headers += ["target test"] if tests else []
     rows = []
     for name, value in parameters.items():
-        interval = intervals.get(name)
+        interval = intervals.get(name) or tests.get(name, {}).get("interval")
         shown = "-"
         if interval:
             shown = f"{_num(interval.get('lower'))} - {_num(interval.get('upper'))}"
-        rows.append(
-            (
-                escape(name),
-                _num(value),
-                escape(units.get(name, "")),
-                shown,
-                escape("fixed" if name in fixed else verdicts.get(name, "-")),
-            )
+        row = [
+            escape(name),
+            _num(value),
+            escape(units.get(name, "")),
+            shown,
+            escape("fixed" if name in fixed else verdicts.get(name, "-")),
+        ]
+        if tests:
+            row.append(escape(_target_cell(tests[name])) if name in tests else "-")
+        rows.append(row)
+    parts.append(table_html(headers, rows, numeric=(1,)))
+    if tests:
+        parts.append(
+            "<p>Target tests (an adaptive campaign's round): the likelihood-ratio test at the"
+            " estimate less and plus its target. Confirmed where both ends are rejected: the 95 %"
+            " interval lies within the target. Its interval is read from the points tested"
+            " where no profile was made.</p>"
         )
-    parts.append(
-        table_html(
-            ["parameter", "value", "unit", "95 % interval", "identifiable"], rows, numeric=(1,)
-        )
-    )
     nrmse = document.get("nrmse", {})
     nrmse_rows = [
         (escape(label), role, f"{value:.4f}")
@@ -613,6 +621,23 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: file.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def _target_cell(test: dict[str, Any]) -> str:
+    """A target test's outcome and the half-width it tested (% of the estimate)."""
+    estimate = test.get("estimate") or 0.0
+    widths = [abs(end - estimate) for end in test.get("ends", []) if end is not None]
+    width = f"+-{100.0 * max(widths) / abs(estimate):.3g} %" if widths and estimate else ""
+    if test.get("confirmed"):
+        return f"confirmed at {width}"
+    reasons = [
+        f"the estimate is at its bound {side}" if end is None else f"the end {side} fits"
+        for side, end, done in zip(
+            ("below", "above"), test.get("ends", []), test.get("rejected", []), strict=True
+        )
+        if not done
+    ]
+    return f"not confirmed at {width}: " + ", ".join(reasons)
 
 
 def _num(value: Any) -> str:

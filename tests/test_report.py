@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 from pathlib import Path
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import CommandOutputs
+from json_schemas import validate
 
 from dtid.cli import main
 
@@ -51,6 +53,43 @@ def test_the_report_holds_the_identification_and_diagnosis(
     for figure in FIGURES:
         assert f"id='{figure}'" in text
     assert "dtid simulate (seed 0)" in text  # the metadata travelled with the recording
+
+
+def test_a_campaign_rounds_target_tests_are_shown_with_their_outcome(
+    command_outputs: CommandOutputs, tmp_path: Path
+) -> None:
+    """An identification checked by target tests (a campaign round's): each tested parameter's
+    outcome and, where it has no profile, the interval its test read."""
+    document = json.loads((command_outputs.folder / "identification.json").read_text())
+    estimate = document["parameters"]["eps12"]
+    document["intervals"].pop("eps12")
+    document["profiles"].pop("eps12")
+    ends = [0.95 * estimate, 1.05 * estimate]
+    document["target_tests"] = {
+        "eps12": {
+            "estimate": estimate,
+            "ends": ends,
+            "rejected": [True, False],
+            "confirmed": False,
+            "interval": {"lower": 0.97 * estimate, "upper": None},
+            "bounds": [0.0, 4.0 * estimate],
+            "values": [estimate, *ends],
+            "statistic": [0.0, 9.1, 1.2],
+            "margin": [0.0, 0.4, 0.3],
+        }
+    }
+    validate(document, "identification")
+    path = tmp_path / "identification.json"
+    path.write_text(json.dumps(document))
+    out = tmp_path / "report.html"
+    command = ["report", str(command_outputs.recording), "--identification", str(path)]
+    assert main([*command, "-o", str(out)]) == 0
+    text = out.read_text()
+    assert "<th>target test</th>" in text
+    assert "not confirmed at +-5 %: the end above fits" in text
+    assert f"{0.97 * estimate:.4g} - open" in text
+    c12 = document["intervals"]["c12"]  # a profiled parameter keeps its profile's interval
+    assert f"{c12['lower']:.4g} - {c12['upper']:.4g}</td><td>" in text
 
 
 def test_the_report_is_self_contained(report: Path) -> None:
