@@ -89,6 +89,7 @@ def test_identify_names_an_engine_that_lags_its_request(
     assert [run["engine_lag"]["tau_s"] for run in runs] == pytest.approx([0.06, 0.06], rel=0.15)
 
 
+@pytest.mark.slow  # two searches of the paper's 60 s chirps (31 s)
 def test_a_measured_engine_lag_in_the_model_halves_the_misfit(tmp_path: Path) -> None:
     """A concealed 30 ms torque lag, the paper's 60 s chirps, c12, d12 and eps12 free: with
     the model's engine prompt (the default) eq. (24) reads K 0.61 for 0.9 and the fit ends at

@@ -156,6 +156,7 @@ def test_k_read_stroke_by_stroke_is_within_a_fraction_of_a_percent(name: str) ->
     assert abs(eq24 / true_k - 1) > 0.004
 
 
+@pytest.mark.slow  # two searches and two polishes from the truth (40 s)
 def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
     """With the speed sensor adding up tooth times (``[sensors] speed_average = "times"``)
     vehicle_2's truth fits far better than with eq. (9)'s average of speeds (eq. 17 0.069

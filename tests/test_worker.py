@@ -505,11 +505,12 @@ def test_validation_chirp_with_lost_frames_leaves_the_identification_unvalidated
     assert json.loads((ipc_dir / "r.json").read_text()) == result
 
 
-def test_replay_alone_gives_the_live_result(
-    session: SimulatedSession, ipc_dir: Path, offline: dict, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """A worker started after the session ended gets every event from the replay, page by page
-    (pages of 40 events here, so that the session takes several)."""
+def _replayed(
+    session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> tuple[FakeDaemon, list[tuple[str, dict[str, Any]]]]:
+    """A worker started after the session ended, fed by the replay alone in pages of 40 events
+    (so that the session takes several), diagnosing and planning the follow-up for one vehicle
+    around the identified one (its files beside the log); its requests and messages."""
     monkeypatch.setattr(worker_module, "REPLAY_PAGE", 40)
     pipeline = _pipeline(ipc_dir)
     daemon = FakeDaemon(pipeline, session.events, page=40)
@@ -517,12 +518,23 @@ def test_replay_alone_gives_the_live_result(
     assert daemon.done.wait(10)
     options = WorkerOptions(
         settings=BUDGET, profile_points=0, diagnose=True, plan_follow_up=True, plan_vehicles=1
-    )  # beside the log
+    )
     try:
         status, messages, _ = _serve(pipeline, options, timeout_s=600.0)
     finally:
         daemon.close()
-    assert status == 0 and daemon.requests[0] == 0
+    assert status == 0
+    return daemon, messages
+
+
+def test_replay_alone_gives_the_live_result(
+    session: SimulatedSession, ipc_dir: Path, offline: dict, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A worker started after the session ended gets every event from the replay, page by page,
+    and identifies, diagnoses and plans the follow-up as `dtid identify` and `dtid diagnose`
+    do on the log."""
+    daemon, messages = _replayed(session, ipc_dir, monkeypatch)
+    assert daemon.requests[0] == 0
     assert daemon.requests[: len(session.events) // 40 + 1] == list(
         range(0, len(session.events), 40)
     )
@@ -555,9 +567,20 @@ def test_replay_alone_gives_the_live_result(
     if plan["plan"] is not None:  # the follow-up adds to what the session reached
         for name, value in plan["predicted_precision"].items():
             assert value < plan["recorded"]["predicted_precision"][name], name
-    # ... and is dtid plan --after's, planned for a vehicle around the identified one too, each
-    # parameter within twice the precision reached (close, not equal: the log's set-point differs
-    # from the stream's in the last digits, and the friction's information moves with them)
+
+
+@pytest.mark.slow  # the replayed worker again, and dtid plan --after beside it (80 s)
+def test_the_replayed_workers_follow_up_is_dtid_plan_afters(
+    session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The worker's follow-up is `dtid plan --after`'s on the log, planned for a vehicle around
+    the identified one too, each parameter within twice the precision reached (close, not
+    equal: the log's set-point differs from the stream's in the last digits, and the friction's
+    information moves with them)."""
+    _, messages = _replayed(session, ipc_dir, monkeypatch)
+    (plan,) = [d for t, d in messages if t == "plan"]
+    folder = session.log_path.parent
+    identification = folder / "identification.json"
     out = folder / "offline-plan.json"
     command = ["plan", "--prior", str(identification), "--after", str(session.log_path)]
     assert main([*command, "--spread-vehicles", "1", "--json", str(out)]) == 0
