@@ -624,10 +624,11 @@ def _sha256(path: Path) -> str:
 
 
 def _target_cell(test: dict[str, Any]) -> str:
-    """A target test's outcome and the half-width it tested (% of the estimate)."""
+    """A target test's outcome and the half-width it tested (% of the estimate; in the
+    parameter's unit for an estimate of zero)."""
     estimate = test.get("estimate") or 0.0
-    widths = [abs(end - estimate) for end in test.get("ends", []) if end is not None]
-    width = f"+-{100.0 * max(widths) / abs(estimate):.3g} %" if widths and estimate else ""
+    half = max((abs(end - estimate) for end in test.get("ends", []) if end is not None), default=0)
+    width = f"+-{100.0 * half / abs(estimate):.3g} %" if estimate else f"+-{half:.3g}"
     if test.get("confirmed"):
         return f"confirmed at {width}"
     reasons = [

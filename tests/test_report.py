@@ -13,6 +13,7 @@ from conftest import CommandOutputs
 from json_schemas import validate
 
 from dtid.cli import main
+from dtid.identification.html_report import _target_cell
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 CHROMIUM_ARGS = [  # as on this machine's closed network (docs/formats.md)
@@ -90,6 +91,9 @@ def test_a_campaign_rounds_target_tests_are_shown_with_their_outcome(
     assert f"{0.97 * estimate:.4g} - open" in text
     c12 = document["intervals"]["c12"]  # a profiled parameter keeps its profile's interval
     assert f"{c12['lower']:.4g} - {c12['upper']:.4g}</td><td>" in text
+    # a friction identified at zero: no lower end to test, the half-width in N*m
+    at_zero = {"estimate": 0.0, "ends": [None, 0.05], "rejected": [False, True]}
+    assert _target_cell(at_zero) == "not confirmed at +-0.05: the estimate is at its bound below"
 
 
 def test_the_report_is_self_contained(report: Path) -> None:
