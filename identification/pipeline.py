@@ -82,7 +82,9 @@ class RunSelection:
     Attributes
     ----------
     tests
-        One per recording that has such runs, rebuilt from its data up to the cut.
+        One per recording that has such runs, rebuilt from its data up to the cut; ordered by
+        their runs' amplitudes and FRFs, whatever order the recordings came in
+        (:func:`_content_key`).
     runs
         Indices of the analysed runs in each test's estimates.
     cuts_s
