@@ -1,4 +1,4 @@
-"""Interval coverage: how many profile intervals of the identification trial hold the truth.
+r"""Interval coverage: how many profile intervals of the identification trial hold the truth.
 
 Reads the JSON files that ``benchmarks/identification_trial.py --truth N --profile-points P
 --json tN.json`` wrote, redraws each truth from its number, and prints per recording the
