@@ -22,9 +22,9 @@ from benchmarks.identification_trial import draw_truth
 from dtid.identification.search.parameterization import theta_from_parameters
 
 
-def coverage(document: dict) -> tuple[int, int, int, int, list[str]]:
-    """Of one trial's profiles: intervals, those holding the truth, closed ones, closed ones
-    holding it, and a line per miss."""
+def coverage(document: dict) -> tuple[list[int], list[str]]:
+    """Of one trial's profiles: the counts of intervals, those holding the truth, closed ones and
+    closed ones holding it; and a line per miss."""
     truth = theta_from_parameters(draw_truth(int(document["truth"])))
     counts = [0, 0, 0, 0]
     misses = []
@@ -38,7 +38,7 @@ def coverage(document: dict) -> tuple[int, int, int, int, list[str]]:
         if not holds:
             ends = f"{lower:.4g}-{upper:.4g}" if closed else f"({lower}, {upper})"
             misses.append(f"{name} {ends} for {value:.4g}")
-    return (*counts, misses)  # type: ignore[return-value]
+    return counts, misses
 
 
 def main() -> None:
@@ -52,7 +52,7 @@ def main() -> None:
     )
     totals = [0, 0, 0, 0]
     for document in documents:
-        *counts, misses = coverage(document)
+        counts, misses = coverage(document)
         totals = [t + c for t, c in zip(totals, counts, strict=True)]
         objective = document["objective"]
         print(
