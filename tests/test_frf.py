@@ -185,21 +185,27 @@ def test_an_engine_that_lags_its_request_is_named_as_the_cause() -> None:
 
 
 def test_a_refused_lagging_engine_has_its_lag_fitted(reference: DrivetrainParameters) -> None:
-    """The simulator's torque_lag of 0.12 s on the reference vehicle, a 4 N*m chirp of 30 s:
-    refused, and the lag fitted where the torque stays coherent (2.0-5.0 Hz) comes within 30 %
-    (0.13 s; seeds 1-6 0.091-0.131 s: the band starts above the lag's 1.3 Hz corner), K within
-    10 % of 0.9, and the half-torque frequency follows from them."""
+    """The simulator's torque_lag of 0.12 s on the reference vehicle, a 4 N*m chirp of 30 s,
+    seeds 1-6: every run refused, and the lag fitted where the torque stays coherent (from 2.0
+    Hz to 4.2-5.5 Hz) named in at least five (all six: 0.091-0.131 s; the band starts above the
+    lag's 1.3 Hz corner), their median within 30 % (0.102 s) and K's within 10 % of 0.9 (0.83),
+    and the half-torque frequency following from them. Not one seed alone: whether a lag is
+    named turns on tau's standard error against :data:`LAG_SPREAD`, near it on some seeds."""
     plan = TestPlan(amplitudes_nm=(4.0,), validation_nm=0.0, duration_s=30.0)
     options = SimulationOptions(effects=Effects({"tau_m": 0.12}))
-    data = from_simulation(simulate(reference, plan, options, seed=1))
-    with pytest.raises(AnalysisError, match="delivers the request with a lag") as refused:
-        estimate_frf(data, find_runs(data.test_torque)[0])
-    text = str(refused.value)
-    fitted = re.search(r"lag of about ([\d.]+) s with K ([\d.]+) .* at ([\d.]+) Hz\)", text)
-    assert fitted, text
-    tau, gain, half = map(float, fitted.groups())
+    named = []
+    for seed in range(1, 7):
+        data = from_simulation(simulate(reference, plan, options, seed=seed))
+        with pytest.raises(AnalysisError, match="delivers the request with a lag") as refused:
+            estimate_frf(data, find_runs(data.test_torque)[0])
+        text = str(refused.value)
+        fitted = re.search(r"lag of about ([\d.]+) s with K ([\d.]+) .* at ([\d.]+) Hz\)", text)
+        if fitted:
+            named.append(tuple(map(float, fitted.groups())))
+    assert len(named) >= 5, named
+    tau, gain = np.median(np.array(named)[:, :2], axis=0)
     assert tau == pytest.approx(0.12, rel=0.3) and gain == pytest.approx(0.9, rel=0.1)
-    assert 1.5 < half < 4.0
+    assert all(1.5 < h < 4.0 for _, _, h in named)
 
 
 def test_engine_lag_recovers_lag_gain_and_dead_time_and_declines_without_a_lag() -> None:

@@ -576,7 +576,8 @@ def cross_spectra(
     ----------
     z, y, x
         Test torque (N*m), filtered speed (rpm) and mean torque (N*m) on the event grid; 1-D, or
-        2-D with one test per row (the model side of the identification).
+        2-D with one test per row (the model side of the identification), where ``z`` may be a
+        single row that every test shares.
     rate
         Event rate, Hz.
     nperseg
