@@ -77,6 +77,22 @@ def test_each_row_depends_on_its_own_parameters_only(reference: DrivetrainParame
     np.testing.assert_array_equal(alone, crowd)
 
 
+def test_each_row_depends_on_its_own_parameters_only_when_the_drive_is_recorded(
+    reference_measured: MeasuredTest, reference: DrivetrainParameters
+) -> None:
+    """The same to the bit, alone or beside other sets and one that cannot idle, on the path
+    that drives the model stroke by stroke with the recording (all sets share the recorded
+    test torque's transform)."""
+    test = reference_measured.model_test([1])
+    assert test.loop is not None
+    alone = model_drv_db(reference.as_array()[None], test)[0][0]
+    others = [reference.as_array() * np.r_[np.full(10, f), 1, 1] for f in (0.7, 1.3)]
+    stalling = reference.replace(T_loss=3000.0).as_array()
+    crowd = model_drv_db(np.vstack([*others, stalling, reference.as_array()]), test)[0]
+    np.testing.assert_array_equal(alone, crowd[-1])
+    assert np.isnan(crowd[2]).all() and np.isfinite(crowd[:2]).all()
+
+
 def test_a_set_that_cannot_idle_gets_nan(reference: DrivetrainParameters) -> None:
     plan = TestPlan(amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=10.0)
     data = from_simulation(simulate(reference, plan, SimulationOptions.clean()))
