@@ -1,7 +1,8 @@
 """Start values from what the frequency response itself says (sections IV-A and V).
 
 * J_sum: below the first mode |G_DRV| = 1/(J_sum omega) (eq. 18 as s -> 0, the engine's stroke
-  hold removed); the prior's J_sum is kept as a second start.
+  hold removed), less the DMF anti-resonance's share (:func:`total_inertia`); the prior's J_sum
+  is kept as a second start.
 Stiffness and free play are not started from eq. (23): it needs the torque amplitude across the
 DMF spring at resonance, which is not the test amplitude (it depends on the damping and on the
 play itself), and reading it from the FRF gave start values off by a factor of two on the
