@@ -340,7 +340,7 @@ def _run_curves(
     measured grid."""
     requests, start_s = replay.requests, estimate.run.start_s - replay.offset_s
     n_jobs, length = len(batch.status), estimate.n_events
-    y, x, z = (np.zeros((n_jobs, length)) for _ in range(3))
+    y, x = (np.zeros((n_jobs, length)) for _ in range(2))
     u = np.zeros((n_jobs, length)) if engine else x  # the model's T_ecu
     from_request = test.input == "request"
     rate = np.ones(n_jobs)
@@ -352,6 +352,12 @@ def _run_curves(
         recorded_z = loop.test_nm[run_event : run_event + length]
         recorded_u = loop.drive_nm[run_event : run_event + length]
         stroke_drive = loop.drive(replay.start_event)
+        # every set repeats the recorded test torque: its segments transformed once, not per
+        # set (the same spectra to the bit, a third fewer transforms: the dearer part of a call
+        # where the segment's length is a prime, 227 events at 850 rpm)
+        z = np.asarray(recorded_z, dtype=float)[None]
+    else:
+        z = np.zeros((n_jobs, length))
     for job in np.flatnonzero(batch.status == 0):
         speed = batch.speed[job, : batch.n_speed[job]]
         torque = batch.torque[job, : batch.n_torque[job]]
@@ -384,11 +390,6 @@ def _run_curves(
     eng_db = db.copy()
     if not ok.any():
         return ModelCurves(db, eng_db)
-    if recorded_z is not None:
-        # every set repeats the recorded test torque: its segments transformed once, not per
-        # set (the same spectra to the bit, a third fewer transforms: the dearer part of a call
-        # where the segment's length is a prime, 227 events at 850 rpm)
-        z = np.asarray(recorded_z, dtype=float)[None]
     unit_frequency, s_zy, s_zx = cross_spectra(z, y, x, 1.0, estimate.nperseg)
     if engine:
         s_zu = cross_spectra(z, u, x, 1.0, estimate.nperseg)[1]
