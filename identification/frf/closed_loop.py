@@ -79,6 +79,10 @@ class FrfEstimate:
     torque_coherence
         gamma^2_zx alone, 1: the measured torque's coherence with the test torque, which
         bounds the lag's band (the speed's dips at the antiresonance do not concern T/T_ecu).
+    excitation
+        S_zz, the test torque's auto-spectrum per bin, (N*m)^2/Hz: how much of the chirp each
+        bin saw. Flat over the sweep, it falls in the bins at its ends, which fewer Welch
+        segments see whole, and an FRF's scatter rises there as 1/S_zz.
     """
 
     run: ChirpRun
@@ -93,6 +97,7 @@ class FrfEstimate:
     nperseg: int
     eng_phase: np.ndarray
     torque_coherence: np.ndarray
+    excitation: np.ndarray
 
     @property
     def drv_db(self) -> np.ndarray:
@@ -298,6 +303,7 @@ def estimate_frf(
         nperseg,
         phase,
         torque_coherence,
+        s_zz,
     )
 
 
