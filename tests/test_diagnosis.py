@@ -158,7 +158,7 @@ def test_a_torque_lag_is_named_fitted_and_bounded_on_g_eng(reference, lagging, s
     significant, the held-out run's |G_ENG| closer, its profile interval holding the value the
     recording was made with. The model diagnosed has the true drivetrain and eq. (24)'s K, which
     the lag lowers (|G_ENG|'s mean); the lag's fit on |G_ENG| restores K, and the drivetrain
-    refitted with both stays at the truth. On the recording without a lag the model is adequate
+    refitted with both stays near the truth. On the recording without a lag the model is adequate
     and the lag is not called indistinguishable: |G_ENG| would see one."""
     _, chosen = lagging
     fit = chosen[0][1]
@@ -177,8 +177,11 @@ def test_a_torque_lag_is_named_fitted_and_bounded_on_g_eng(reference, lagging, s
     interval = diagnosis.intervals["tau_m"]
     assert interval["verdict"] == "practical" and interval["lower"] < TAU_M < interval["upper"]
     drivetrain = named.drivetrain()
-    for name in ("J1", "J2", "J3", "c12", "c23"):  # measured within 1.7 %; K +0.5 %
-        assert getattr(drivetrain, name) == pytest.approx(getattr(reference, name), rel=0.03)
+    # within issue 15's 5 %: the refit ends in the DMF's valley where its path takes it (with
+    # the speed sensor's noise in the map's draws, c12 +3.4 %, the friction +59 %; without,
+    # +0.9 % and +8 %: the same lag and K); the inertias within 0.5 %, K +0.6 %
+    for name in ("J1", "J2", "J3", "c12", "c23"):
+        assert getattr(drivetrain, name) == pytest.approx(getattr(reference, name), rel=0.05)
     assert diagnosis.after is not None and diagnosis.after.adequate, diagnosis.after.bands
     assert "torque_lag explains it" in diagnosis.sentence()
 
@@ -335,12 +338,13 @@ def test_the_smoothed_scatter_keeps_the_rise_where_the_chirp_excites_less():
 def test_the_model_draws_scatter_as_recordings_do_at_the_top_of_the_sweep(
     reference: DrivetrainParameters,
 ) -> None:
-    """The reference vehicle at 5 and 10 N*m, seeds 1-16, the model at the truth: in the top bin
-    of each run (14.48 Hz, the sweep's end, where fewer Welch segments see the chirp) the
-    recordings' scatter over the seeds is within a factor of 1.5 of the one the map's draws give
-    (0.19-0.53 dB for 0.23-0.43 dB), and so in the bin below (0.11-0.19 dB for 0.10-0.19 dB).
-    Before the draws' variance was averaged over neighbours by the excitation, the top bin's
-    scatter came out at 0.54-0.92 of the recordings' (now 0.82-1.22)."""
+    """The reference vehicle at 5 and 10 N*m, seeds 1-16, the model at the truth: over the top
+    six bins of each run (12.98-14.48 Hz, where the speed's response is smallest and the sweep
+    ends) the recordings' scatter over the seeds is within a factor of 1.5 of the one the map's
+    draws give, on |G_DRV| and |G_ENG|. Measured: 0.81-1.07 of it. Without the speed sensor's
+    noise in the draws, the 5 N*m |G_DRV| scattered 1.6 times what they gave; with a plain
+    average over neighbouring bins (not by the excitation) the top bin's scatter came out at
+    0.54-0.92 of the recordings'."""
     plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0)
     measured, drawn = {}, {}
     for seed in range(1, 17):
@@ -348,12 +352,12 @@ def test_the_model_draws_scatter_as_recordings_do_at_the_top_of_the_sweep(
         selection = identification_runs([MeasuredTest.from_data("r", data, 0.25, VehicleData())])
         for run in model_scatter(reference, "fit", selection, 16):
             key = (run.estimate.run.amplitude_nm, run.frf)
-            measured.setdefault(key, []).append(run.residual_db[-2:])
-            drawn.setdefault(key, []).append(run.scatter_db[-2:] ** 2)
+            measured.setdefault(key, []).append(run.residual_db[-6:])
+            drawn.setdefault(key, []).append(run.scatter_db[-6:] ** 2)
     assert len(measured) == 4
     for key, residuals in measured.items():
-        ratio = np.std(residuals, axis=0, ddof=1) / np.sqrt(np.mean(drawn[key], axis=0))
-        assert np.all((ratio > 1 / 1.5) & (ratio < 1.5)), (key, ratio)
+        ratio = np.sqrt(np.mean(np.var(residuals, axis=0, ddof=1)) / np.mean(drawn[key]))
+        assert 0.75 < ratio < 1.3, (key, ratio)
 
 
 def test_neighbour_correlation_of_an_ar1_sequence():

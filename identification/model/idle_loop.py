@@ -55,6 +55,7 @@ import numpy as np
 from dtid.errors import AnalysisError
 from dtid.identification.model.combustion import variation_and_noise
 from dtid.identification.model.cylinder_spread import odd_place, stroke_factors
+from dtid.identification.model.speed_noise import speed_noise_rpm
 from dtid.identification.samples.testdata import Series, TestData
 from dtid.jsonfile import json_number
 from dtid.simulator.angle_grid import N_CYL, RPM_PER_RAD_S
@@ -119,6 +120,9 @@ class IdleLoop:
         The two told apart (:func:`dtid.identification.model.combustion.variation_and_noise`):
         relative variation of each stroke's delivered torque, 1, and the torque sensor's noise, N*m;
         NaN for a drive by measured torque.
+    speed_noise_rpm
+        The speed sensor's noise on each report, rpm
+        (:func:`dtid.identification.model.speed_noise.speed_noise_rpm`; NaN if not measured).
     stroke_t, stroke_request_nm, stroke_torque_nm
         Each reported stroke's time (s), the request it took and its measured mean torque
         (N*m), for K read stroke by stroke (:meth:`engine_gain`); empty for a drive by measured
@@ -155,6 +159,7 @@ class IdleLoop:
     stroke_number: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     odd_stroke: int = 0
     lag_s: float = 0.0
+    speed_noise_rpm: float = float("nan")
 
     def engine_gain(self, windows: Sequence[tuple[float, float]] = ()) -> tuple[float, float]:
         """K of eq. (3) from the strokes reported inside ``windows`` (s; all when empty):
@@ -250,6 +255,7 @@ class IdleLoop:
             "engine_lag_s": self.lag_s,
             "combustion_variation": json_number(self.combustion_variation),
             "torque_noise_nm": json_number(self.torque_noise_nm),
+            "speed_noise_rpm": json_number(self.speed_noise_rpm),
             "tracking_bandwidth_hz": TRACK_BANDWIDTH_HZ,
             "tracking_kp_nm_per_rpm": controller.kp_nm_per_rpm,
             "tracking_ki_nm_per_rpm_s": controller.ki_nm_per_rpm_s,
@@ -274,6 +280,7 @@ def idle_loop(data: TestData, lag_s: float = 0.0) -> IdleLoop:
     if len(data.speed) < 8 or len(data.mean_torque) < 4:
         raise AnalysisError("too few speed or mean-torque samples to repeat the test in the model")
     t, speed = _event_grid(data.speed)
+    noise_rpm = speed_noise_rpm(speed, 1.0 / float(np.median(np.diff(t))))
     test = _held(data.test_torque, t)
     strokes = _nearest(t, data.mean_torque.t)
     if data.torque_request is not None and len(data.torque_request) > 1:
@@ -305,13 +312,23 @@ def idle_loop(data: TestData, lag_s: float = 0.0) -> IdleLoop:
             number,
             odd_place(factors),
             lag_s,
+            noise_rpm,
         )
     # a stroke's mean torque is known, and reported, when the stroke ends: the stroke started
     # SAMPLES_PER_STROKE events before its report
     measured = _per_event(data.mean_torque, t)
     starting = np.append(measured[SAMPLES_PER_STROKE:], np.full(SAMPLES_PER_STROKE, measured[-1]))
     first = int(strokes[0]) % SAMPLES_PER_STROKE
-    return IdleLoop(MEASURED_TORQUE, t, speed, test, starting, first, SAMPLES_PER_STROKE)
+    return IdleLoop(
+        MEASURED_TORQUE,
+        t,
+        speed,
+        test,
+        starting,
+        first,
+        SAMPLES_PER_STROKE,
+        speed_noise_rpm=noise_rpm,
+    )
 
 
 def latch(

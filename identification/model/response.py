@@ -138,9 +138,10 @@ class ModelTest:
         independently.
     recording_noise
         Draw the noise a recording has instead of the expected response's: the combustion
-        variation without the torque sensor's noise, and that noise on the modelled mean torque,
-        both as the idle loop measured them (a single realization is then one recording of the
-        model; :mod:`dtid.identification.diagnosis.mismatch` measures the scatter so).
+        variation without the torque sensor's noise, that noise on the modelled mean torque,
+        and the speed sensor's on the modelled speed, each as the idle loop measured it (a
+        single realization is then one recording of the model;
+        :mod:`dtid.identification.diagnosis.mismatch` measures the scatter so).
     replays
         What is simulated (derived).
     """
@@ -171,6 +172,8 @@ class ModelTest:
             separated = (self.loop.combustion_variation, self.loop.torque_noise_nm)
             if all(np.isfinite(separated)):
                 noise = {"combustion_variation": separated[0], "torque_noise_nm": separated[1]}
+            if np.isfinite(self.loop.speed_noise_rpm):
+                noise["speed_noise_rpm"] = self.loop.speed_noise_rpm
         options = SimulationOptions.clean(
             **noise,
             controller=controller,
