@@ -12,7 +12,7 @@ standard deviation s sampled at f_s it is 2 s^2 / f_s.
 The diagnosis needs it: its model draws a recording's scatter (:mod:`dtid.identification.
 diagnosis.mismatch`), and without the speed's noise the draws missed half of the scatter the
 recordings of a 5 N*m chirp show at the top of the sweep, where the speed's response is
-smallest (the reference vehicle, seeds 1-16: 0.20-0.25 dB against 0.11-0.16 dB over 12.6-14.3
+smallest (the reference vehicle, seeds 1-24: 0.17-0.23 dB against 0.11-0.13 dB over 13.2-14.2
 Hz).
 
 Measured: on the reference vehicle's recordings (seed 3, 5 and 10 N*m) 0.298 rpm for 0.3 rpm
