@@ -17,7 +17,7 @@ Hz).
 
 Measured: on the reference vehicle's recordings (seed 3, 5 and 10 N*m) 0.298 rpm for 0.3 rpm
 and 0.595 rpm for 0.6, 0.013 rpm without noise, whatever the combustion variation (3 or 6 %);
-on the independent recordings (0.2 rpm per speed event) 0.177-0.204 rpm from each of their six
+on the independent recordings (0.2 rpm per speed event) 0.186-0.216 rpm from each of their six
 files. A sensor whose noise is averaged with the speed (jitter on the tooth times inside the
 window) shows less there, and the model then draws less of it: the mismatch map's scatter scale
 (``scatter_scale``) still widens the scatter by the residual's roughness.
