@@ -605,14 +605,14 @@ def smoothed(variance: np.ndarray, excitation: np.ndarray) -> np.ndarray:
     variance
         Per bin, the draws' variance, dB^2.
     excitation
-        Per bin, the test torque's auto-spectrum S_zz, (N*m)^2/Hz.
+        Per bin, the test torque's auto-spectrum S_zz, (N*m)^2/Hz (a bin without any: NaN).
     """
     finite = np.isfinite(variance) & (excitation > 0)
     kernel = np.ones(SMOOTH_BINS)
     total = np.convolve(np.where(finite, variance * excitation, 0.0), kernel, mode="same")
     count = np.convolve(finite.astype(float), kernel, mode="same")
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(count > 0, total / count / excitation, np.nan)
+        return np.where((count > 0) & (excitation > 0), total / count / excitation, np.nan)
 
 
 def neighbour_correlation(deviations: Sequence[np.ndarray]) -> float:
