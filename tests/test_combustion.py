@@ -6,7 +6,11 @@ import numpy as np
 import pytest
 
 from dtid.acquisition.plan import TestPlan
-from dtid.identification.model.combustion import stroke_variation, variation_and_noise
+from dtid.identification.model.combustion import (
+    recorded_variation,
+    stroke_variation,
+    variation_and_noise,
+)
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import TestData, from_simulation
 from dtid.simulator.parameters import DrivetrainParameters
@@ -62,3 +66,54 @@ def test_a_few_wild_strokes_do_not_move_the_noise() -> None:
     v, s = variation_and_noise(delivered, measured)
     assert v == pytest.approx(0.03, abs=0.002)
     assert s == pytest.approx(0.3, abs=0.03)
+
+
+def _strokes(rng: np.random.Generator, count: int = 8000) -> tuple[np.ndarray, ...]:
+    """Requests swept over 5-25 N*m; each stroke's variation u (3 %) and the sensor's noise e
+    (0.3 N*m)."""
+    delivered = 15 + 10 * np.sin(0.3 * np.arange(count))
+    variation = 0.03 * delivered * rng.standard_normal(count)
+    return delivered, variation, 0.3 * rng.standard_normal(count)
+
+
+def test_the_recorded_variation_is_the_strokes_variation_as_the_noise_lets_it_be_known() -> None:
+    """The estimate is the conditional mean w r of each stroke's variation given its residual
+    r = u + e (w = (v d)^2 / ((v d)^2 + s^2)): its error is uncorrelated with it and has the
+    variance left^2 (v d)^2 the model still draws; left is s / sqrt((v d)^2 + s^2) at the
+    median load."""
+    rng = np.random.default_rng(8)
+    delivered, u, e = _strokes(rng)
+    known, left = recorded_variation(delivered, delivered + u + e, 0.03, 0.3)
+    assert left == pytest.approx(0.3 / np.hypot(0.03 * np.median(delivered), 0.3), rel=1e-12)
+    error = u - known
+    assert abs(np.corrcoef(error, known)[0, 1]) < 0.03
+    d2 = (0.03 * delivered) ** 2
+    expected = d2 * 0.09 / (d2 + 0.09)  # the posterior variance of u
+    assert np.mean(error**2) == pytest.approx(np.mean(expected), rel=0.05)
+
+
+def test_a_cylinder_an_engine_lag_and_lost_requests_are_not_variation() -> None:
+    """One cylinder 10 % strong, a delivered torque lagging its request (a filter over this and
+    the previous stroke's request) and twenty strokes whose request the log lost: the estimate
+    holds the random variation as without them."""
+    rng = np.random.default_rng(9)
+    delivered, u, e = _strokes(rng)
+    place = np.arange(len(delivered)) % 4
+    clean, _ = recorded_variation(delivered, delivered + u + e, 0.03, 0.3)
+    lagged = 0.8 * delivered + 0.2 * np.roll(delivered, 1)
+    measured = np.where(place == 2, 1.1, 1.0) * lagged + u + e
+    wild = np.flatnonzero(delivered > 22)[100:120]
+    measured[wild] += 12.0
+    known, _ = recorded_variation(delivered, measured, 0.03, 0.3, place)
+    assert np.all(known[wild] == 0)
+    kept = np.ones(len(known), dtype=bool)
+    kept[wild] = False
+    kept[:2] = False  # no requests before them to take a lag out with
+    assert np.std(known[kept] - clean[kept]) < 0.1 * np.std(clean[kept])
+    assert np.corrcoef(known[kept], u[kept])[0, 1] > 0.6
+
+
+def test_without_a_variation_nothing_is_known_of_it() -> None:
+    delivered = np.linspace(5, 25, 200)
+    assert recorded_variation(delivered, delivered + 1, 0.0, 0.3)[1] == 1.0
+    assert not recorded_variation(delivered, delivered + 1, float("nan"), 0.3)[0].any()

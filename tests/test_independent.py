@@ -8,19 +8,19 @@ engine data from ``truth.toml``'s ``[engine]`` table, the default box and search
 * the model is right about these vehicles: started at the truth, the search's last stages end
   at an optimum within the issue's targets on every parameter, fitting the identification runs
   within an NRMSE of 0.045 each (with the product's own idle loop imposed, the truth fitted the
-  10 N*m runs at 0.10-0.13); on vehicle_1, whose gearbox side is 5 % of the inertia, within
-  twice the target on the gear coupling's stiffness (there the optimum nearest the truth lies
-  at c23 +5.0 %, inside a profile interval of +-20 %: these recordings do not pin it);
-* the search fits better than the truth, ends no higher than 1 % above the optimum nearest the
-  truth, and finds the total inertia, the mass ratios, the DMF play and the DMF damping within
-  their targets.
+  10 N*m runs at 0.10-0.13; before the model replayed the recordings' own combustion
+  variation, vehicle_1's nearest optimum lay at c23 +5.0 % and the test allowed it twice the
+  target, now at +2.1 %);
+* the search fits better than the truth, fits no worse than the optimum nearest the truth
+  (within 1 %, on model draws neither optimisation saw: :func:`_fresh_excess`), and finds
+  the total inertia, the mass ratios, the DMF play and the DMF damping within their targets.
 
 What is not asserted, because it does not hold on both: the stiffnesses, J3, the gear
 coupling's damping and play, and the friction. The gear coupling trades along its mode's
-frequency, and where a search ends in that valley depends on its path (2026-11-27, files in
-sorted order: vehicle_1 c23 +12 %, d23 +9 %, eps23 -1 %; vehicle_2 c23 +2 %, the friction
-+42 %; both below the optimum nearest the truth); see docs/accuracy.md. The test is
-skipped, and says so, where the recordings are not beside the repository.
+frequency, and where a search ends in that valley depends on its path (2026-11-30: vehicle_1
+J3 +15, c23 +7.9, eps23 -17 % at eq. 17 0.0470, fitting as well as its optimum nearest the
+truth; vehicle_2 within every target); see docs/accuracy.md. The test is skipped, and says
+so, where the recordings are not beside the repository.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 import pytest
+from scipy import stats
 
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.pipeline import (
@@ -112,6 +113,34 @@ def _nearest_the_truth(report: IdentificationReport, truth: DrivetrainParameters
     return Nearest(errors, value, par.parameters(unit[None]), model_tests, measured)
 
 
+FRESH_SEEDS = range(1, 13)
+"""Model seeds the two optima are compared on: the search's own draws are seed 0."""
+
+
+def _fresh_excess(nearest: Nearest, found: np.ndarray) -> np.ndarray:
+    """Eq. (17) of ``found`` (a kernel parameter row) minus that of the optimum nearest the
+    truth, on each of :data:`FRESH_SEEDS`' draws of the model.
+
+    Both optimisations minimise eq. (17) on the model's seed-0 draws, and a polish started at
+    the truth fits those draws' own scatter too: on vehicle_2 its optimum scored 0.0595 on them
+    and 0.0651 +- 0.0031 on twelve fresh ones, where the search's end scored 0.0621 and
+    0.0653 (paired difference +0.0002 +- 0.0011). Compared on seed 0 alone, the search would be
+    judged by which of the two had the luckier draws.
+    """
+    rows = np.vstack([nearest.parameters, found])
+    totals = np.zeros((len(FRESH_SEEDS), 2))
+    for k, seed in enumerate(FRESH_SEEDS):
+        for test, db_runs in zip(nearest.model_tests, nearest.measured, strict=True):
+            model = model_drv_db(rows, dataclasses.replace(test, seed=seed))
+            for data, curves in zip(db_runs, model, strict=True):
+                totals[k] += nrmse(data, curves)
+    return totals[:, 1] - totals[:, 0]
+
+
+def _standard_error(values: np.ndarray) -> float:
+    return float(np.std(values, ddof=1) / np.sqrt(len(values)))
+
+
 @pytest.mark.parametrize("name", ["vehicle_1", "vehicle_2"])
 def test_independent_vehicle(name: str) -> None:
     tests, truth, _ = _vehicle(name)
@@ -121,17 +150,19 @@ def test_independent_vehicle(name: str) -> None:
     # the model: the optimum nearest the truth meets every target and fits each run
     nearest = _nearest_the_truth(report, truth)
     errors, value = nearest.errors, nearest.value
-    targets = {**TARGETS, "c23": 2 * TARGETS["c23"]} if name == "vehicle_1" else TARGETS
-    misses = {n: round(e, 3) for n, e in errors.items() if abs(e) > targets[n]}
+    misses = {n: round(e, 3) for n, e in errors.items() if abs(e) > TARGETS[n]}
     assert not misses, f"optimum nearest the truth (eq. 17 {value:.4f}): {misses}"
     for test, db_runs in zip(nearest.model_tests, nearest.measured, strict=True):
         for model, data in zip(model_drv_db(nearest.parameters, test), db_runs, strict=True):
             assert nrmse(data, model)[0] < 0.045
     # the search: it reaches the optimum nearest the truth or one that fits better (before
     # stage 2 ended each polish with Levenberg-Marquardt steps, vehicle_1's search stopped in
-    # the gear coupling's valley at 0.054 for 0.050), and what it pins down on both vehicles
+    # the gear coupling's valley at 0.054 for 0.050), judged on model draws neither of the two
+    # optimisations saw, and what it pins down on both vehicles
     assert result.objective < report.fit_objective(truth)
-    assert result.objective <= 1.01 * value, (result.objective, value)
+    excess = _fresh_excess(nearest, result.parameters.as_array()[None])
+    allowed = 0.01 * value + stats.t.ppf(0.95, len(excess) - 1) * _standard_error(excess)
+    assert excess.mean() <= allowed, (excess.mean(), allowed)
     for pinned in ("J_sum", "x1", "x12", "eps12", "d12"):
         found = result.theta[pinned] / true_theta[pinned] - 1
         assert abs(found) <= TARGETS[pinned], f"{pinned} {found:+.3f}"

@@ -381,7 +381,9 @@ def test_dtid_plan_after_a_recording_plans_its_follow_up(
     document = json.loads(out.read_text())
     validate(document, "plan")
     widths = document["spread"]["percent_by_parameter"]
-    assert widths["Tc12"] == 100 * MAX_SPREAD and widths["J1"] < 10
+    # the friction left wide open (86 % of its value; the cap 90 % before the model replayed
+    # the recording's own combustion variation), the inertias pinned
+    assert 50 < widths["Tc12"] <= 100 * MAX_SPREAD and widths["J1"] < 10
     runs = document["recorded"]["runs"]
     assert sorted(round(r["amplitude_nm"]) for r in runs) == [5, 10]
     assert all(abs(r["duration_s"] - 30) < 0.5 for r in runs)

@@ -65,7 +65,7 @@ import numpy as np
 from scipy import optimize, stats
 
 from dtid.identification.diagnosis.mismatch import MismatchMap, sidak
-from dtid.identification.model.response import model_curves, model_drv_db
+from dtid.identification.model.response import DEFAULT_REALIZATIONS, model_curves, model_drv_db
 from dtid.identification.pipeline import RunSelection
 from dtid.identification.search.identify import Objective, SearchSettings, refine
 from dtid.identification.search.objective import nrmse
@@ -136,12 +136,18 @@ GLOBAL_NEAR = 0.1
 """Half of its first population lies this far (normalised, standard deviation) around the
 start, the other half spans the box (a Latin hypercube): a mechanism the identification bent
 its parameters around may need them far from the identified values."""
-REFIT_SETTINGS = SearchSettings(final_evaluations=300, polish_evaluations=300)
-"""Budget of each refit's Nelder-Mead and Levenberg-Marquardt stages."""
+REFIT_SETTINGS = SearchSettings(
+    final_evaluations=300, polish_evaluations=300, final_realizations=DEFAULT_REALIZATIONS
+)
+"""Budget of each refit's Nelder-Mead and Levenberg-Marquardt stages, on the model's own
+realizations (the identification's last stages take twice as many since 2026-11-30; the
+refits and the diagnosis's calibration were measured with these)."""
 NEAR_ZERO = 0.05
 """A parameter identified below this share of the prior's value gets no relative shift in
 :class:`Absorbed`."""
-ABSORB_SETTINGS = SearchSettings(final_evaluations=100, polish_evaluations=100)
+ABSORB_SETTINGS = SearchSettings(
+    final_evaluations=100, polish_evaluations=100, final_realizations=DEFAULT_REALIZATIONS
+)
 """Budget of :meth:`Refit.absorbed`'s polish (Nelder-Mead, then Levenberg-Marquardt steps: the
 curves it fits are the model's own, smooth, and the steps do most of the work)."""
 

@@ -118,3 +118,73 @@ def _robust_variance(load: np.ndarray, squared: np.ndarray, bins: int = 8) -> np
     centres = np.array([np.median(load[g]) for g in groups])
     levels = np.array([np.median(squared[g]) for g in groups]) / CHI2_1_MEDIAN
     return np.maximum(np.interp(load, centres, levels), VARIANCE_FLOOR)
+
+
+SYSTEMATIC_TAPS = 3
+"""Requests (a stroke's own and the ones before it) whose linear effect on a stroke's residual
+:func:`recorded_variation` takes out as not random: an engine lag or a wrong K makes the
+delivered torque a filtered request, and such a term is the engine path's, not the variation's."""
+
+
+def recorded_variation(
+    delivered: np.ndarray,
+    measured: np.ndarray,
+    variation: float,
+    noise: float,
+    place: np.ndarray | None = None,
+) -> tuple[np.ndarray, float]:
+    """The recording's own combustion variation, stroke by stroke, as far as the measured torque
+    tells it from the sensor's noise.
+
+    The vehicle's idle controller reacts to the variation its strokes delivered, and the
+    recorded request carries that reaction; a model that replays the request and draws a
+    variation of its own excites its crankshaft with both. Each stroke's residual r = measured -
+    delivered holds the variation (sd v d) and the noise (sd s); its best estimate is w r,
+    w = (v d)^2 / ((v d)^2 + s^2), and what is left unknown has the relative sd
+    v s / sqrt((v d)^2 + s^2), taken at the median load.
+
+    Only the random part of r is the variation. Taken out first, as the model's own business:
+    each place in the firing order's mean ratio (a cylinder imbalance is a mechanism the
+    diagnosis fits, :mod:`dtid.identification.model.cylinder_spread`), the residual's linear
+    dependence on the stroke's request and the :data:`SYSTEMATIC_TAPS` - 1 before it (an engine
+    lag, a K off; the variation of a stroke cannot move the requests latched before it, the
+    idle loop reacts to it only later), and any stroke beyond :data:`OUTLIER_SIGMAS` of its
+    spread (a request the log lost), which is given no variation.
+
+    Parameters
+    ----------
+    delivered
+        K times the request each stroke latched, N*m.
+    measured
+        The measured mean torque of the same strokes, N*m.
+    variation, noise
+        v (1) and s (N*m), as :func:`variation_and_noise` gives them.
+    place
+        Each stroke's place in the firing order (None: the cylinders are not told apart).
+
+    Returns
+    -------
+    tuple
+        Per stroke the estimated variation, N*m, and the factor (<= 1) by which the relative
+        variation the model still draws is smaller than v (1 where nothing is known).
+    """
+    if not (np.isfinite(variation) and np.isfinite(noise)) or variation <= 0:
+        return np.zeros(len(delivered)), 1.0
+    if len(delivered) < MIN_STROKES:
+        return np.zeros(len(delivered)), 1.0
+    expected = delivered.copy()
+    if place is not None:
+        for k in np.unique(place):
+            at = place == k
+            expected[at] *= np.sum(measured[at]) / np.sum(delivered[at])
+    residual = measured - expected
+    taps = [np.roll(delivered, lag) for lag in range(SYSTEMATIC_TAPS)]
+    rows = np.column_stack([np.ones(len(delivered)), *taps])[SYSTEMATIC_TAPS - 1 :]
+    fitted = np.linalg.lstsq(rows, residual[SYSTEMATIC_TAPS - 1 :], rcond=None)[0]
+    residual[SYSTEMATIC_TAPS - 1 :] -= rows @ fitted
+    residual[: SYSTEMATIC_TAPS - 1] = 0.0
+    spread2 = (variation * delivered) ** 2
+    residual[residual**2 > OUTLIER_SIGMAS**2 * (spread2 + noise**2)] = 0.0
+    weight = spread2 / (spread2 + noise**2)
+    median2 = (variation * np.median(np.abs(delivered))) ** 2
+    return weight * residual, float(noise / np.sqrt(median2 + noise**2))

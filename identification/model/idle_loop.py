@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dtid.errors import AnalysisError
-from dtid.identification.model.combustion import variation_and_noise
+from dtid.identification.model.combustion import recorded_variation, variation_and_noise
 from dtid.identification.model.cylinder_spread import odd_place, stroke_factors
 from dtid.identification.model.speed_noise import speed_noise_rpm
 from dtid.identification.samples.testdata import Series, TestData
@@ -140,6 +140,16 @@ class IdleLoop:
         The lag the model's engine delivers the request through (the ``torque_lag``
         mechanism's tau_m), s; 0: at once. The latch, K, the variation and
         :attr:`stroke_request_nm` are read through it (:func:`stroke_lagged`).
+    variation_nm
+        The recording's own combustion variation, per crank event at the event its stroke
+        latched, in request units (N*m of T_ecu), as far as the measured torque tells it from
+        the sensor's noise (:func:`dtid.identification.model.combustion.recorded_variation`);
+        :meth:`drive` adds it to the request, so that the model's idle loop, which replays the
+        vehicle's reaction to this variation, is excited by it and not by a draw of its own.
+        Empty for a drive by measured torque and with an engine lag.
+    variation_left
+        The factor by which the relative variation the model still draws is smaller than
+        :attr:`combustion_variation` (1 where nothing of it is known).
     """
 
     mode: str
@@ -160,6 +170,8 @@ class IdleLoop:
     odd_stroke: int = 0
     lag_s: float = 0.0
     speed_noise_rpm: float = float("nan")
+    variation_nm: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    variation_left: float = 1.0
 
     def engine_gain(self, windows: Sequence[tuple[float, float]] = ()) -> tuple[float, float]:
         """K of eq. (3) from the strokes reported inside ``windows`` (s; all when empty):
@@ -232,8 +244,12 @@ class IdleLoop:
         return int((first - self.odd_stroke) % N_CYL)
 
     def drive(self, start: int) -> np.ndarray:
-        """The request of each stroke from a start event on, N*m."""
-        return self.drive_nm[start::SAMPLES_PER_STROKE]
+        """The request of each stroke from a start event on, N*m: the recorded request with the
+        recording's own combustion variation where it is known (:attr:`variation_nm`)."""
+        drive = self.drive_nm[start::SAMPLES_PER_STROKE]
+        if len(self.variation_nm):
+            drive = drive + self.variation_nm[start::SAMPLES_PER_STROKE]
+        return drive
 
     def as_dict(self) -> dict[str, object]:
         """The JSON entry ``idle_loop`` of a recording."""
@@ -293,6 +309,13 @@ def idle_loop(data: TestData, lag_s: float = 0.0) -> IdleLoop:
         variation, noise = variation_and_noise(gain * taken, data.mean_torque.value[ok])
         first = int(strokes[0]) - lag
         number = np.rint((at[ok] - first) / SAMPLES_PER_STROKE).astype(np.int64)
+        own = np.zeros(len(request))
+        left = 1.0
+        if lag_s <= 0:  # a lagging engine's strokes are not read one by one
+            known, left = recorded_variation(
+                gain * taken, data.mean_torque.value[ok], variation, noise, number % N_CYL
+            )
+            own[at[ok]] = known / gain
         factors = stroke_factors(number, data.mean_torque.value[ok], taken)[0]
         return IdleLoop(
             RECORDED_REQUEST,
@@ -313,6 +336,8 @@ def idle_loop(data: TestData, lag_s: float = 0.0) -> IdleLoop:
             odd_place(factors),
             lag_s,
             noise_rpm,
+            own,
+            left,
         )
     # a stroke's mean torque is known, and reported, when the stroke ends: the stroke started
     # SAMPLES_PER_STROKE events before its report
