@@ -706,7 +706,9 @@ def test_a_clutch_stage_that_a_drivetrain_in_another_basin_fits_as_well_is_not_n
     80 -> 277 N*m/rad) and explains the recordings, and the clutch's refit ends at c23_2 20
     (docs/diagnosis.md). Since J_sum's start value was corrected (2026-11-30) both at once: the
     stage at c23_2 210 (+5 %) with its knee at 0.0036 (-10.1 %: the knee's tolerance is 15 %,
-    the stiffness's 10 %), and the drivetrain refitted alone at c23 174, J3 0.0295."""
+    the stiffness's 10 %), and the drivetrain refitted alone at c23 174, J3 0.0295. Since the
+    model replays the recording's own combustion variation (2026-11-30) the drivetrain refitted
+    alone lies nearer the truth along the valley: J3 0.0342 (-14.5 %)."""
     from dtid.workflow import measured_tests
 
     tests = measured_tests([clutched])
@@ -720,7 +722,7 @@ def test_a_clutch_stage_that_a_drivetrain_in_another_basin_fits_as_well_is_not_n
     found_stage = clutch.parameters()["c23_2"] == pytest.approx(200, rel=0.1)
     if found_stage:  # the stage where it is, and a drivetrain that trades J3 for c23 as good
         assert clutch.parameters()["knee23"] == pytest.approx(0.004, rel=0.15)
-        assert refitted.parameters.J3 < 0.75 * reference.J3  # the valley, not the truth
+        assert refitted.parameters.J3 < 0.9 * reference.J3  # the valley, not the truth
     else:  # the drivetrain took the stage into a stiffer clutch
         assert refitted.parameters.c23 > 1.5 * reference.c23, diagnosis.sentence()
     assert "explains the recordings" in diagnosis.sentence()

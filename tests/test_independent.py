@@ -190,13 +190,17 @@ def test_k_read_stroke_by_stroke_is_within_a_fraction_of_a_percent(name: str) ->
 @pytest.mark.slow  # two searches and two polishes from the truth (40 s)
 def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
     """With the speed sensor adding up tooth times (``[sensors] speed_average = "times"``)
-    vehicle_2's truth fits far better than with eq. (9)'s average of speeds (eq. 17 0.069
-    against 0.080), the optimum nearest it lies within 2.5 % of it on all ten parameters (eq. 9's
-    up to 5.4-7.6 %) and fits at least as well as eq. (9)'s nearest optimum: these recordings'
-    sensor is a tooth timer (docs/accuracy.md). Where the local polish from the truth ends moves
-    with the machine's floating point (0.0638 against 0.0655 on one host, 0.0648 against 0.0650
-    on another), so the two sensors are compared on the same machine, not against a figure.
-    The search's own end is not asserted (at the default budget it ends in another basin)."""
+    vehicle_2's truth fits better than with eq. (9)'s average of speeds (eq. 17 0.0707 against
+    0.0759), the optimum nearest it lies within 1.5 % of it on every parameter but the
+    friction (+4.7 %) and fits at least as well as eq. (9)'s nearest optimum: these recordings'
+    sensor is a tooth timer (docs/accuracy.md). Before the model replayed the recording's own
+    combustion variation (2026-11-30) the sensor made the larger difference (0.069 against
+    0.080 at the truth; eq. 9's nearest optimum up to 5.4-7.6 % off, now within 4 %, the
+    tooth timer's within 2.5 %): the variation drawn twice had been mistaken partly for the
+    sensor. Where the local polish from the truth ends moves with the machine's floating point
+    (0.0638 against 0.0655 on one host, 0.0648 against 0.0650 on another), so the two sensors
+    are compared on the same machine, not against a figure. The search's own end is not
+    asserted (at the default budget it ends in another basin)."""
     brief = SearchSettings(popsize=4, generations=1, polish_starts=1, scan_starts=1)
     at_truth, nearest = {}, {}
     for average in ("times", "speeds"):
@@ -204,7 +208,8 @@ def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
         report = run_identification(tests, reference_parameters(), settings=brief, profile_points=0)
         at_truth[average] = report.fit_objective(truth)
         nearest[average] = _nearest_the_truth(report, truth)
-    assert at_truth["times"] < 0.9 * at_truth["speeds"], at_truth
+    assert at_truth["times"] < 0.95 * at_truth["speeds"], at_truth
     errors = {n: round(e, 4) for n, e in nearest["times"].errors.items()}
-    assert max(abs(e) for e in errors.values()) < 0.025, errors
+    assert max(abs(e) for n, e in errors.items() if n != "Tc12") < 0.015, errors
+    assert abs(errors["Tc12"]) < TARGETS["Tc12"] / 2, errors
     assert nearest["times"].value <= 1.01 * nearest["speeds"].value
