@@ -272,6 +272,7 @@ class IdleLoop:
             "combustion_variation": json_number(self.combustion_variation),
             "torque_noise_nm": json_number(self.torque_noise_nm),
             "speed_noise_rpm": json_number(self.speed_noise_rpm),
+            "variation_left": self.variation_left,
             "tracking_bandwidth_hz": TRACK_BANDWIDTH_HZ,
             "tracking_kp_nm_per_rpm": controller.kp_nm_per_rpm,
             "tracking_ki_nm_per_rpm_s": controller.ki_nm_per_rpm_s,
