@@ -168,9 +168,8 @@ def recorded_variation(
         Per stroke the estimated variation, N*m, and the factor (<= 1) by which the relative
         variation the model still draws is smaller than v (1 where nothing is known).
     """
-    if not (np.isfinite(variation) and np.isfinite(noise)) or variation <= 0:
-        return np.zeros(len(delivered)), 1.0
-    if len(delivered) < MIN_STROKES:
+    known = np.isfinite(variation) and np.isfinite(noise) and variation > 0
+    if not known or len(delivered) < MIN_STROKES:
         return np.zeros(len(delivered)), 1.0
     expected = delivered.copy()
     if place is not None:
