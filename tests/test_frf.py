@@ -10,7 +10,12 @@ from scipy import signal
 
 from dtid.acquisition.plan import TestPlan, requested_test_torque
 from dtid.errors import AnalysisError
-from dtid.identification.frf.closed_loop import engine_lag, estimate_frf, stroke_lag
+from dtid.identification.frf.closed_loop import (
+    cross_spectra,
+    engine_lag,
+    estimate_frf,
+    stroke_lag,
+)
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.frf.sensor_response import speed_filter_gain, torque_hold_gain
 from dtid.identification.samples.testdata import Series, TestData, from_simulation
@@ -263,3 +268,22 @@ def test_a_few_lost_speed_frames_are_filled(reference_data: TestData) -> None:
     filled = estimate_frf(lossy, run)
     np.testing.assert_allclose(filled.frequency_hz, full.frequency_hz, rtol=1e-4)
     assert np.abs(filled.drv_db - full.drv_db).max() < 0.05
+
+
+@pytest.mark.parametrize("nperseg", [226, 227])
+def test_cross_spectra_are_scipys_welch_estimate(nperseg: int) -> None:
+    """The cross-spectra, computed on all Welch segments at once, are scipy.signal.csd's (Hann
+    window, half overlap, the mean removed per segment, one-sided density) for one test and for a
+    batch of tests sharing one test torque; even and odd segments (the Nyquist bin)."""
+    rng = np.random.default_rng(2)
+    z = rng.standard_normal(3000) + 2.0
+    y, x = rng.standard_normal((2, 3, 3000)) + 5.0
+    welch = {"fs": 37.5, "nperseg": nperseg, "window": "hann", "detrend": "constant"}
+    frequency, s_zy, s_zx = cross_spectra(z, y, x, 37.5, nperseg)
+    for row in range(3):
+        expected_f, expected_zy = signal.csd(z, y[row], **welch)
+        assert frequency == pytest.approx(expected_f, rel=1e-12)
+        assert s_zy[row] == pytest.approx(expected_zy, rel=1e-10, abs=1e-14)
+        assert s_zx[row] == pytest.approx(signal.csd(z, x[row], **welch)[1], rel=1e-10, abs=1e-14)
+    single = cross_spectra(z, y[0], x[0], 37.5, nperseg)
+    assert single[1] == pytest.approx(s_zy[0], rel=1e-12)

@@ -31,13 +31,16 @@ box in four stages, each on a more exact and dearer objective (the model's reali
    the optimum nearest the truth the objective first rose to 0.0736 and then fell to 0.0601,
    where on another seed it fell all the way. On eight they end at 0.0647, every parameter
    within issue 15's targets. Stage 2's ranking picks the basin poorly (its second point
-   ended there at 0.0642, its third at 0.0689), hence two starts;
+   ended there at 0.0642, its third at 0.0689), hence two starts, whose ends are compared on
+   fresh draws of the model (each end is the least of many evaluations of its own draws);
 4. Levenberg-Marquardt steps on the same objective, from a Jacobian whose differences are sized
    above the model's Monte Carlo jitter (:mod:`dtid.identification.search.sensitivity`):
    Nelder-Mead crawls along the shallow, coupled directions of the dampings and the friction, where
    the jitter of the objective is as large as its slope, and stops short of the minimum. A step
-   is kept only if it also fits better on fresh draws of the model (:func:`confirmed`), so
-   that it does not wander along a direction the data cannot see. The steps go on until one
+   is kept only if it fits better on fresh draws of the model (:func:`confirmed`), so that it
+   does not wander along a direction the data cannot see, and whatever it does on the
+   objective's own draws, where the polish's end is a lucky minimum of their noise
+   (:func:`levenberg_marquardt`). The steps go on until one
    no longer improves (at most ``newton_iterations``): the DMF's stiffness, free play and mass
    ratio trade along a narrow curved valley (one of them moved alone raises eq. 17 six-fold)
    where Nelder-Mead stalls and each step gains a little; capped at 4 steps, the search ended
@@ -54,7 +57,8 @@ stiffnesses as coordinates (eq. 17 0.065 and 0.077, J3 +115 % and the friction +
 returned in the caller's coordinates.
 
 Every stage only ever accepts improvements (the objective is not smooth: free play and friction
-make it piecewise). Everything is seeded, so a run is reproducible.
+make it piecewise), stage 4 and the choice between the ends judged on fresh draws of the model.
+Everything is seeded, so a run is reproducible.
 """
 
 from __future__ import annotations
@@ -74,7 +78,7 @@ from dtid.identification.model.response import ModelTest, model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.search.objective import nrmse, summed_nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, Parameterization
-from dtid.identification.search.sensitivity import jacobian
+from dtid.identification.search.sensitivity import jacobian, sized_steps
 from dtid.simulator.parameters import DrivetrainParameters
 
 logger = logging.getLogger(__name__)
@@ -116,7 +120,7 @@ class SearchSettings:
         model's default): see the module notes.
     final_starts
         Stage 2's best points (ranked on the report's realizations) each taken through stages 3
-        and 4; the one that ends lowest is the result.
+        and 4; the end that fits best on fresh draws of the model is the result.
     newton_iterations
         Most Levenberg-Marquardt steps of stage 4 (it stops before, at the first step that
         does not improve or hold: 0-10 steps kept on the identification trial's eleven truths).
@@ -483,16 +487,18 @@ def _last_stages(
     began: float,
 ) -> Identification:
     """Stages 3 (final polish) and 4 (Levenberg-Marquardt) from each row of ``starts`` (the
-    search's coordinates), and the identification the lowest end gives."""
+    search's coordinates), and the identification of the end that fits best on fresh draws."""
     coordinates = objective.parameterization
     if starts.shape[1]:
         stages["final"] = objective.replacing(realizations=settings.final_realizations)
         stages["newton"] = objective.replacing(realizations=settings.final_realizations)
-        ends = [
-            _finish(stages["final"], stages["newton"], start, settings, progress)
-            for start in starts
-        ]
-        best = min(ends, key=lambda end: end[1])[0]
+        ends = np.array(
+            [
+                _finish(stages["final"], stages["newton"], start, settings, progress)[0]
+                for start in starts
+            ]
+        )
+        best = ends[_lowest_on_fresh_draws(stages["newton"], ends)]
     else:
         best = starts[0]
     stages.setdefault("final", objective)
@@ -687,12 +693,18 @@ def _polish(
     return result.x, float(result.fun)
 
 
-LM_DAMPINGS = (0.01, 0.1, 1.0, 10.0)
-"""Levenberg-Marquardt dampings tried at each step, relative to the diagonal of J^T J."""
-CONFIRM_SEEDS = (1, 2, 3, 4)
-"""Seeds of the fresh model draws on which a Levenberg-Marquardt step must improve too."""
+LM_DAMPINGS = (1e-4, 1e-3, 0.01, 0.1, 1.0)
+"""Levenberg-Marquardt dampings tried at each step, relative to the diagonal of J^T J. The two
+smallest are nearly Gauss-Newton: at vehicle_1's stage-3 ends of the independent recordings the
+step at 1e-3 gained 0.0019 on fresh draws where 0.01's gained 0.0015 and 1.0's nothing."""
+CONFIRM_SEEDS = tuple(range(101, 109))
+"""Seeds of the fresh model draws a Levenberg-Marquardt step must fit better on (apart from the
+profiles' replicas, seeds 1-8, and from :data:`CHOICE_SEEDS`)."""
 CONFIRM_QUANTILE = float(stats.t.ppf(0.95, len(CONFIRM_SEEDS) - 1))
-"""Standard errors by which the mean improvement on the fresh draws must exceed zero (2.35)."""
+"""Standard errors by which the mean improvement on the fresh draws must exceed zero (1.89)."""
+CHOICE_SEEDS = tuple(range(201, 209))
+"""Seeds of the fresh model draws the ends of stages 3 and 4 are compared on
+(:func:`_lowest_on_fresh_draws`)."""
 
 
 def levenberg_marquardt(
@@ -706,10 +718,22 @@ def levenberg_marquardt(
     of each of stage 2's polishes and of each profile point's re-optimisation.
 
     Each step takes the Jacobian with sized differences
-    (:func:`dtid.identification.search.sensitivity.jacobian`), solves for the steps of all
-    :data:`LM_DAMPINGS` and evaluates them in one batch; the best is kept if it lowers eq. (17) and
-    holds on fresh draws (:func:`confirmed`), else the search ends. Nelder-Mead crawls along the
-    shallow, coupled directions of the dampings and the friction; this step crosses them.
+    (:func:`dtid.identification.search.sensitivity.jacobian`; after the first, with the steps
+    sized at the previous point: one round of differences instead of two), solves for the
+    steps of all :data:`LM_DAMPINGS` and evaluates them in one batch; the best of them on
+    ``objective``'s own draws is kept if it fits better than the current point on fresh draws
+    (:func:`confirmed`), else the search ends. Nelder-Mead crawls along the shallow, coupled
+    directions of the dampings and the friction; this step crosses them.
+
+    Whether a step fits better is decided on the fresh draws alone, not also on the objective's
+    own: where the steps start, at the end of a Nelder-Mead polish, that value is the least of
+    some hundred evaluations of a rough function (sets close together differ like partly
+    independent draws), so it lies below the objective's mean there by the luck of the draws,
+    and a step rarely beats it however much better it fits. On vehicle_1's stage-3 ends (the
+    independent recordings, eq. 17 0.0484 and 0.0480) no step beat them on their own draws and
+    both searches stopped at once, where the steps gained 0.0015-0.0021 on eight fresh draws
+    (SE 0.0003); judged on fresh draws, the searches went on to 0.0469 and 0.0474 on draws
+    neither had seen (from 0.0494 and 0.0496).
 
     Parameters
     ----------
@@ -726,14 +750,17 @@ def levenberg_marquardt(
     Returns
     -------
     tuple
-        The normalised free values reached and eq. (17) there.
+        The normalised free values reached and eq. (17) there on ``objective``'s own draws (which
+        may exceed ``value``: see above).
     """
     best = start
     moving = [i for i in range(len(start)) if i != held]
+    steps = None
     for _ in range(iterations):
-        jac, residual = jacobian(objective, best, moving)
+        jac, residual = jacobian(objective, best, moving, steps)
         if not (np.isfinite(jac).all() and np.isfinite(residual).all()):
             break
+        steps = sized_steps(objective, jac)  # the next Jacobian's, measured here
         normal = jac.T @ jac
         gradient = jac.T @ residual
         scale = np.diag(np.diag(normal)) + 1e-12 * np.eye(len(moving))
@@ -742,10 +769,12 @@ def levenberg_marquardt(
             step = np.linalg.solve(normal + damping * scale, gradient)
             candidates[row, moving] = np.clip(best[moving] - step, 0.0, 1.0)
         values = objective(candidates)
-        choice = candidates[int(np.argmin(values))]
-        if values.min() >= value or not confirmed(objective, best, choice):
+        if not np.isfinite(values).any():
             break
-        best, value = choice, float(values.min())
+        choice = candidates[int(np.nanargmin(values))]
+        if not confirmed(objective, best, choice):
+            break
+        best, value = choice, float(np.nanmin(values))
     return best, value
 
 
@@ -758,7 +787,7 @@ def confirmed(objective: Objective, before: np.ndarray, after: np.ndarray) -> bo
     :mod:`dtid.identification.uncertainty.profile`). Where the data cannot see a parameter, any step
     along it that the search's own draws prefer is luck: on a 30 s hardware-in-the-loop log, a step
     that lowered eq. (17) by 0.1 % moved the DMF friction from +2 % to +33 % and fitted no better on
-    eight other draws. So the improvement must hold on the draws of :data:`CONFIRM_SEEDS` too,
+    eight other draws. So the improvement must hold on the draws of :data:`CONFIRM_SEEDS`,
     paired (both sets on the same draws): their mean must exceed :data:`CONFIRM_QUANTILE` standard
     errors. A deterministic model (no combustion variation) gives equal draws, and there any
     improvement holds.
@@ -770,14 +799,29 @@ def confirmed(objective: Objective, before: np.ndarray, after: np.ndarray) -> bo
     before, after
         Normalised free values (n_free,).
     """
-    gains = []
-    for seed in CONFIRM_SEEDS:
-        fresh = objective.replacing(seed=seed)
-        value_before, value_after = fresh(np.array([before, after]))
-        objective.count(fresh)
-        gains.append(value_before - value_after)
+    gains = _on_fresh_draws(objective, np.array([before, after]), CONFIRM_SEEDS)
+    gains = gains[:, 0] - gains[:, 1]
+    if not np.isfinite(gains).all():
+        return False
     mean = float(np.mean(gains))
     return mean > CONFIRM_QUANTILE * float(np.std(gains, ddof=1)) / np.sqrt(len(gains))
+
+
+def _on_fresh_draws(objective: Objective, units: np.ndarray, seeds: Sequence[int]) -> np.ndarray:
+    """Eq. (17) of each row of ``units`` on the model's draws of each seed: (seeds, rows)."""
+    values = []
+    for seed in seeds:
+        fresh = objective.replacing(seed=seed)
+        values.append(fresh(units))
+        objective.count(fresh)
+    return np.array(values)
+
+
+def _lowest_on_fresh_draws(objective: Objective, units: np.ndarray) -> int:
+    """Index of the row of ``units`` with the lowest mean eq. (17) on the draws of
+    :data:`CHOICE_SEEDS`: the ends of stages 3 and 4 are each the work of an optimisation on
+    its own draws and compared there would be compared on that luck."""
+    return int(np.argmin(np.mean(_on_fresh_draws(objective, units, CHOICE_SEEDS), axis=0)))
 
 
 def _nrmse_by_run(

@@ -36,7 +36,10 @@ STEP_RANGE = (0.002, 0.15)
 
 
 def jacobian(
-    objective: Objective, unit: np.ndarray, columns: Sequence[int] | None = None
+    objective: Objective,
+    unit: np.ndarray,
+    columns: Sequence[int] | None = None,
+    steps: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Jacobian of the weighted residuals at one parameter set, by sized central differences.
 
@@ -49,6 +52,9 @@ def jacobian(
     columns
         Free parameters to differentiate by (default: all); a held parameter's column costs two
         model evaluations a round for nothing.
+    steps
+        Normalised step of each column, already sized (:func:`sized_steps` of a Jacobian taken
+        nearby: a Levenberg-Marquardt step's next): one round of differences instead of two.
 
     Returns
     -------
@@ -59,15 +65,9 @@ def jacobian(
     """
     cols = np.arange(len(unit)) if columns is None else np.asarray(columns, dtype=int)
     n = len(cols)
-    spreads = np.concatenate(
-        [
-            np.full(len(data), np.linalg.norm(data - data.mean()))
-            for measured in objective.measured_db
-            for data in measured
-        ]
-    )
-    steps = np.full(n, FIRST_STEP)
-    for _ in range(2):  # measure the sensitivities, then again with steps sized by them
+    rounds = 1 if steps is not None else 2
+    steps = np.full(n, FIRST_STEP) if steps is None else steps
+    for _ in range(rounds):  # measure the sensitivities, then again with steps sized by them
         shift = np.zeros((n, len(unit)))
         shift[np.arange(n), cols] = steps
         up, down = np.clip(unit + shift, 0.0, 1.0), np.clip(unit - shift, 0.0, 1.0)
@@ -75,9 +75,23 @@ def jacobian(
         result = (rows[:n] - rows[n : 2 * n]).T / (up - down)[np.arange(n), cols]
         if not np.isfinite(result).all():
             break  # some step could not idle: no size to measure, the caller sees the NaN
-        rms_db = np.sqrt(np.mean((result * spreads[:, None]) ** 2, axis=0))
-        steps = np.clip(SENSITIVITY_DB / np.maximum(rms_db, 1e-9), *STEP_RANGE)
+        steps = sized_steps(objective, result)
     return result, rows[-1]
+
+
+def sized_steps(objective: Objective, jac: np.ndarray) -> np.ndarray:
+    """Each column's normalised step that changes the model's curves by :data:`SENSITIVITY_DB`
+    RMS, to first order by ``jac`` (a finite Jacobian of :func:`jacobian`), within
+    :data:`STEP_RANGE`."""
+    spreads = np.concatenate(
+        [
+            np.full(len(data), np.linalg.norm(data - data.mean()))
+            for measured in objective.measured_db
+            for data in measured
+        ]
+    )
+    rms_db = np.sqrt(np.mean((jac * spreads[:, None]) ** 2, axis=0))
+    return np.clip(SENSITIVITY_DB / np.maximum(rms_db, 1e-9), *STEP_RANGE)
 
 
 def compensation(objective: Objective, unit: np.ndarray) -> np.ndarray:

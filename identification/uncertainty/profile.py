@@ -618,7 +618,7 @@ def profile_at(
             unit, _ = levenberg_marquardt(
                 objective, fixed(polished.x[None])[0], float(polished.fun), steps, held=k
             )
-            rest = unit[others]  # never worse than the polish's, never worse than its start
+            rest = unit[others]  # the polish's, or better on fresh draws of the model
         return (*_evaluate(objective, measured_db, fixed(rest[None])), rest)
 
     stochastic = any(t.combustion_variation > 0 for t in objective.tests)
