@@ -267,9 +267,10 @@ def test_a_warm_start_keeps_an_earlier_optimum_a_small_search_would_miss(
     reference: DrivetrainParameters, softer_dmf: tuple
 ) -> None:
     """An adaptive campaign's next round polishes the previous round's optimum: with a budget too
-    small to find the DMF's optimum from the prior (two generations of six members), the search
-    ends cold at nine times the objective and keeps the optimum warm-started there (c12, eps12
-    and d12 free, 20 % off the prior)."""
+    small to find the DMF's optimum from the prior (two generations of six members, ten
+    Nelder-Mead evaluations), the search ends cold at 20-40 times the objective (seeds 0-3) and
+    keeps the optimum warm-started there (c12, eps12 and d12 free, 20 % off the prior). With
+    thirty evaluations seed 0's cold search found it too (2026-11-30)."""
     truth, measured = softer_dmf
     theta = theta_from_parameters(truth)
     free = ("c12", "eps12", "d12")
@@ -281,7 +282,7 @@ def test_a_warm_start_keeps_an_earlier_optimum_a_small_search_would_miss(
     budget = SearchSettings(
         popsize=2,
         generations=2,
-        polish_evaluations=30,
+        polish_evaluations=10,
         polish_starts=1,
         scan_starts=0,
         polish_steps=0,
@@ -289,6 +290,6 @@ def test_a_warm_start_keeps_an_earlier_optimum_a_small_search_would_miss(
     )
     cold = identify([measured], par, ident, valid, budget)
     warm = identify([measured], par, ident, valid, budget, warm_starts=[theta])
-    assert warm.objective < 0.3 * cold.objective, (cold.theta, warm.theta)  # 0.0063, 0.058
+    assert warm.objective < 0.3 * cold.objective, (cold.theta, warm.theta)  # 0.0097, 0.19
     for name in free:
         assert warm.theta[name] == pytest.approx(theta[name], rel=0.05), name
