@@ -632,7 +632,7 @@ def _segment_spectra(values: np.ndarray, window: np.ndarray) -> np.ndarray:
     """The FFTs of a signal's Welch segments (half overlap, the mean removed, the window
     applied), all at once: (..., segments, frequencies).
 
-    :func:`scipy.signal.csd` makes the same estimate (``tests/test_frf.py`` checks it to 1e-12)
+    :func:`scipy.signal.csd` makes the same estimate (``tests/test_frf.py`` checks it to 1e-10)
     but transforms segment by segment in Python; for the model side's single parameter sets,
     a search's commonest call, that loop took half of each evaluation (0.20 of 0.38 s for
     twelve sets of two realizations on vehicle_1's recordings, 2026-11-30)."""
