@@ -137,14 +137,20 @@ def _fresh_excess(nearest: Nearest, found: np.ndarray) -> np.ndarray:
     0.0653 (paired difference +0.0002 +- 0.0011). Compared on seed 0 alone, the search would be
     judged by which of the two had the luckier draws.
     """
-    rows = np.vstack([nearest.parameters, found])
-    totals = np.zeros((len(FRESH_SEEDS), 2))
+    totals = _on_fresh_draws(nearest, np.vstack([nearest.parameters, found]))
+    return totals[:, 1] - totals[:, 0]
+
+
+def _on_fresh_draws(nearest: Nearest, rows: np.ndarray) -> np.ndarray:
+    """Eq. (17) of each kernel parameter row on each of :data:`FRESH_SEEDS`' draws of
+    ``nearest``'s model of the identifying runs: (seeds, rows)."""
+    totals = np.zeros((len(FRESH_SEEDS), len(rows)))
     for k, seed in enumerate(FRESH_SEEDS):
         for test, db_runs in zip(nearest.model_tests, nearest.measured, strict=True):
             model = model_drv_db(rows, dataclasses.replace(test, seed=seed))
             for data, curves in zip(db_runs, model, strict=True):
                 totals[k] += nrmse(data, curves)
-    return totals[:, 1] - totals[:, 0]
+    return totals
 
 
 def _standard_error(values: np.ndarray) -> float:
@@ -201,17 +207,15 @@ def test_k_read_stroke_by_stroke_is_within_a_fraction_of_a_percent(name: str) ->
 @pytest.mark.slow  # two searches and two polishes from the truth (40 s)
 def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
     """With the speed sensor adding up tooth times (``[sensors] speed_average = "times"``)
-    vehicle_2's truth fits better than with eq. (9)'s average of speeds (eq. 17 0.0707 against
-    0.0759), the optimum nearest it lies within 1.5 % of it on every parameter but the
-    friction (+4.7 %) and fits at least as well as eq. (9)'s nearest optimum: these recordings'
-    sensor is a tooth timer (docs/accuracy.md). Before the model replayed the recording's own
-    combustion variation (2026-11-30) the sensor made the larger difference (0.069 against
-    0.080 at the truth; eq. 9's nearest optimum up to 5.4-7.6 % off, now within 4 %, the
-    tooth timer's within 2.5 %): the variation drawn twice had been mistaken partly for the
-    sensor. Where the local polish from the truth ends moves with the machine's floating point
-    (0.0638 against 0.0655 on one host, 0.0648 against 0.0650 on another), so the two sensors
-    are compared on the same machine, not against a figure. The search's own end is not
-    asserted (at the default budget it ends in another basin)."""
+    vehicle_2's truth fits better than with eq. (9)'s average of speeds (eq. 17 0.0725 against
+    0.0823, 2026-11-30), the optimum nearest it lies within every target of issue 15, and it
+    fits as well as eq. (9)'s nearest optimum on fresh draws of each model (within 1 % and
+    their Monte Carlo noise): these recordings' sensor is a tooth timer (docs/accuracy.md). On
+    the nearest optima's own draws the comparison is one of luck: 0.0614 against 0.0604 here,
+    0.0638 against 0.0655 on another host. (Before the steps from the truth were judged on
+    fresh draws alone, 2026-11-30, they stopped near it, and the test held the tooth timer's
+    nearest optimum within 1.5 % of the truth; it now goes on to d23 -8, the friction +17 %.)
+    The search's own end is not asserted (at this budget it ends in another basin)."""
     brief = SearchSettings(popsize=4, generations=1, polish_starts=1, scan_starts=1)
     at_truth, nearest = {}, {}
     for average in ("times", "speeds"):
@@ -221,6 +225,10 @@ def test_a_tooth_timer_puts_vehicle_2s_nearest_optimum_on_its_truth() -> None:
         nearest[average] = _nearest_the_truth(report, truth)
     assert at_truth["times"] < 0.95 * at_truth["speeds"], at_truth
     errors = {n: round(e, 4) for n, e in nearest["times"].errors.items()}
-    assert max(abs(e) for n, e in errors.items() if n != "Tc12") < 0.015, errors
-    assert abs(errors["Tc12"]) < TARGETS["Tc12"] / 2, errors
-    assert nearest["times"].value <= 1.01 * nearest["speeds"].value
+    assert all(abs(e) <= TARGETS[n] for n, e in errors.items()), errors
+    fresh = {a: _on_fresh_draws(n, n.parameters)[:, 0] for a, n in nearest.items()}
+    excess = fresh["times"] - fresh["speeds"]  # paired: the same seeds
+    allowed = 0.01 * fresh["speeds"].mean() + stats.t.ppf(0.95, len(excess) - 1) * _standard_error(
+        excess
+    )
+    assert excess.mean() <= allowed, (excess.mean(), allowed)
