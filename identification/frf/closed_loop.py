@@ -21,7 +21,7 @@ and the coherence, the smaller of the z-x and z-y coherences (both paths must be
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cache, cached_property
 
 import numpy as np
 from scipy import fft, interpolate, ndimage, optimize, signal
@@ -616,7 +616,7 @@ def cross_spectra(
     tuple of numpy.ndarray
         Frequencies (Hz), S_zy and S_zx (complex, last axis over frequency).
     """
-    window = signal.get_window("hann", nperseg)
+    window = _hann(nperseg)
     z_f, y_f, x_f = (_segment_spectra(v, window) for v in (z, y, x))
     scale = np.full(z_f.shape[-1], 2.0 / (rate * np.sum(window**2)))
     scale[0] /= 2
@@ -626,6 +626,15 @@ def cross_spectra(
     s_zy = np.mean(conjugate * y_f, axis=-2) * scale
     s_zx = np.mean(conjugate * x_f, axis=-2) * scale
     return fft.rfftfreq(nperseg, 1.0 / rate), s_zy, s_zx
+
+
+@cache
+def _hann(nperseg: int) -> np.ndarray:
+    """The Welch segments' Hann window (periodic, as :func:`scipy.signal.csd` takes it), made
+    once per length: the model side asks for it at every evaluation."""
+    window = signal.get_window("hann", nperseg)
+    window.flags.writeable = False
+    return window
 
 
 def _segment_spectra(values: np.ndarray, window: np.ndarray) -> np.ndarray:
