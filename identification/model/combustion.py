@@ -132,6 +132,7 @@ def recorded_variation(
     variation: float,
     noise: float,
     place: np.ndarray | None = None,
+    earlier: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """The recording's own combustion variation, stroke by stroke, as far as the measured torque
     tells it from the sensor's noise.
@@ -161,6 +162,11 @@ def recorded_variation(
         v (1) and s (N*m), as :func:`variation_and_noise` gives them.
     place
         Each stroke's place in the firing order (None: the cylinders are not told apart).
+    earlier
+        (strokes, :data:`SYSTEMATIC_TAPS` - 1): K times the request latched 1, 2, ... strokes
+        before each stroke, N*m, NaN where the recording holds none. None takes the previous
+        entries of ``delivered``, which is right only where no stroke's report is missing: a
+        lost report would shift every later stroke's taps by one stroke.
 
     Returns
     -------
@@ -177,11 +183,14 @@ def recorded_variation(
             at = place == k
             expected[at] *= np.sum(measured[at]) / np.sum(delivered[at])
     residual = measured - expected
-    taps = [np.roll(delivered, lag) for lag in range(SYSTEMATIC_TAPS)]
-    rows = np.column_stack([np.ones(len(delivered)), *taps])[SYSTEMATIC_TAPS - 1 :]
-    fitted = np.linalg.lstsq(rows, residual[SYSTEMATIC_TAPS - 1 :], rcond=None)[0]
-    residual[SYSTEMATIC_TAPS - 1 :] -= rows @ fitted
-    residual[: SYSTEMATIC_TAPS - 1] = 0.0
+    if earlier is None:
+        earlier = np.column_stack([np.roll(delivered, lag) for lag in range(1, SYSTEMATIC_TAPS)])
+    rows = np.column_stack([np.ones(len(delivered)), delivered, earlier])
+    usable = np.isfinite(rows).all(axis=1)
+    usable[: SYSTEMATIC_TAPS - 1] = False  # the first strokes: no requests before them
+    fitted = np.linalg.lstsq(rows[usable], residual[usable], rcond=None)[0]
+    residual[usable] -= rows[usable] @ fitted
+    residual[~usable] = 0.0
     spread2 = (variation * delivered) ** 2
     residual[residual**2 > OUTLIER_SIGMAS**2 * (spread2 + noise**2)] = 0.0
     weight = spread2 / (spread2 + noise**2)

@@ -53,7 +53,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dtid.errors import AnalysisError
-from dtid.identification.model.combustion import recorded_variation, variation_and_noise
+from dtid.identification.model.combustion import (
+    SYSTEMATIC_TAPS,
+    recorded_variation,
+    variation_and_noise,
+)
 from dtid.identification.model.cylinder_spread import odd_place, stroke_factors
 from dtid.identification.model.speed_noise import speed_noise_rpm
 from dtid.identification.samples.testdata import Series, TestData
@@ -314,7 +318,12 @@ def idle_loop(data: TestData, lag_s: float = 0.0) -> IdleLoop:
         left = 1.0
         if lag_s <= 0:  # a lagging engine's strokes are not read one by one
             known, left = recorded_variation(
-                gain * taken, data.mean_torque.value[ok], variation, noise, number % N_CYL
+                gain * taken,
+                data.mean_torque.value[ok],
+                variation,
+                noise,
+                number % N_CYL,
+                gain * _earlier_requests(request, at[ok]),
             )
             own[at[ok]] = known / gain
         factors = stroke_factors(number, data.mean_torque.value[ok], taken)[0]
@@ -484,6 +493,15 @@ def _event_grid(speed: Series) -> tuple[np.ndarray, np.ndarray]:
     counts = np.concatenate(([0], np.cumsum(missing + 1)))
     grid = np.interp(np.arange(counts[-1] + 1), counts, t)
     return grid, np.interp(grid, t, value)
+
+
+def _earlier_requests(request: np.ndarray, latched: np.ndarray) -> np.ndarray:
+    """(strokes, SYSTEMATIC_TAPS - 1) the request latched 1, 2, ... strokes before each stroke,
+    read off the crank-event grid (so a lost torque report shifts nothing), N*m; NaN before
+    the recording's first event."""
+    lags = SAMPLES_PER_STROKE * np.arange(1, SYSTEMATIC_TAPS)
+    at = latched[:, None] - lags[None, :]
+    return np.where(at >= 0, request[np.maximum(at, 0)], np.nan)
 
 
 def _nearest(grid: np.ndarray, times: np.ndarray) -> np.ndarray:
