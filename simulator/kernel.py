@@ -118,6 +118,14 @@ VERLET = 1
 """``Loop.integration``: drift-kick-drift with predicted midpoint velocities, second order."""
 INTEGRATION: dict[str, int] = {"euler": EULER, "verlet": VERLET}
 """The integration schemes by the name vehicle data and simulation options give them."""
+SPEED_AVERAGES = ("times", "speeds")
+"""How the speed sensor averages its half revolution, by the name vehicle data and simulation
+options give it. ``"times"``, the default: the window's angle over its time, as an engine ECU
+computes a crank-synchronous speed from its tooth wheel (the time the crank takes over the
+segment, one division); ``"speeds"``: the mean of the step speeds, eq. (9) read literally. Both
+have eq. (9)'s frequency response to first order; they differ by the speeds' variance within
+the window over their mean, which the firing pulsation makes and the load modulates, so the
+chirp's torque leaks into the reported speed differently (docs/model-assumptions.md)."""
 
 
 # Layout of a controller array (:meth:`dtid.simulator.controller.IdleController.as_array`).

@@ -28,6 +28,7 @@ from dtid.simulator.kernel import (
     INTEGRATION,
     MAX_SPEED_RATIO,
     MIN_SPEED_RATIO,
+    SPEED_AVERAGES,
     STATUS_OK,
     STATUS_SPEED_RANGE,
     Job,
@@ -82,9 +83,10 @@ class SimulationOptions:
     controller
         Idle-speed controller (and whether the loop is closed).
     speed_average
-        How the speed sensor averages its half revolution: ``"speeds"``, the mean of the 30
-        step speeds (eq. 9, the product's ECU), or ``"times"``, the window's angle over its
-        time, as a tooth timer that adds up tooth times does.
+        How the speed sensor averages its half revolution: ``"times"`` (the default), the
+        window's angle over its time, as a tooth timer that adds up tooth times does, or
+        ``"speeds"``, the mean of the 30 step speeds (eq. 9 read literally)
+        (:data:`dtid.simulator.kernel.SPEED_AVERAGES`).
     integration
         ``"euler"`` (the default: the paper's angle-discrete model, first order) or ``"verlet"``
         (second order: the continuous plant to 0.02 dB; :mod:`dtid.simulator.kernel`).
@@ -101,7 +103,7 @@ class SimulationOptions:
     torque_noise_nm: float = 0.3
     engine: EngineGeometry = field(default_factory=EngineGeometry)
     controller: IdleController = field(default_factory=IdleController)
-    speed_average: str = "speeds"
+    speed_average: str = SPEED_AVERAGES[0]
     effects: Effects = field(default_factory=Effects)
     integration: str = "euler"
 
@@ -110,10 +112,10 @@ class SimulationOptions:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ConfigError(f"simulation option {name} must be >= 0, got {value}")
-        if self.speed_average not in ("speeds", "times"):
+        if self.speed_average not in SPEED_AVERAGES:
             raise ConfigError(
-                f"simulation option speed_average must be 'speeds' or 'times', got "
-                f"{self.speed_average!r}"
+                f"simulation option speed_average must be one of {', '.join(SPEED_AVERAGES)}, "
+                f"got {self.speed_average!r}"
             )
         if self.integration not in INTEGRATION:
             raise ConfigError(

@@ -8,11 +8,13 @@ its 5 N*m run with an NRMSE of 0.134; with that vehicle's own engine data, 0.047
 drivetrain parameters). The crank-train data are on the engine's data sheet, so an engineer gives
 them; without them the model uses the reference engine and says so.
 
-The speed sensor's arithmetic is vehicle data too: eq. (9) averages the step speeds of half a
-revolution, a tooth timer adds up the tooth times (the window's angle over its time). On a
-clean simulated 40 s run at 10 N*m of a tooth-timer vehicle the model at the truth fits at
-0.0064 (NRMSE) when told, 0.0055 when not (eq. 9's vehicle: 0.0055): within the replay's own
-error; on noisy 60 s runs the difference is within 0.002.
+The speed sensor's arithmetic is vehicle data too: a tooth timer adds up the tooth times of
+half a revolution (the window's angle over its time, the default: an engine ECU's
+crank-synchronous speed), eq. (9) read literally averages the step speeds
+(:data:`dtid.simulator.kernel.SPEED_AVERAGES`). Which one a vehicle has is in its ECU's
+software documentation; its recording does not tell, because the identified drivetrain absorbs
+the difference (the optima of both fit alike), at the price of its parameters: the model with
+the wrong one fits random vehicles' truths worse on 7 of 7 (docs/model-assumptions.md).
 
 How the model integrates eq. (6) is the last choice here: the paper fixes the angle step
 (pi/30, eq. 8), not the scheme. ``"euler"`` (the default) is the paper's angle-discrete model,
@@ -48,7 +50,7 @@ the truths of a simulated vehicle) are not read here::
     firing_order = [1, 3, 4, 2]   # the model's cylinders are alike: any order of 1-4
 
     [sensors]
-    speed_average = "speeds"     # "speeds" (eq. 9, the default) or "times" (a tooth timer)
+    speed_average = "times"      # "times" (a tooth timer, the default) or "speeds" (eq. 9)
 
     [model]
     integration = "euler"        # "euler" (eq. 8's discrete model, the default) or "verlet"
@@ -66,7 +68,7 @@ from pathlib import Path
 from dtid.errors import ConfigError
 from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.engine import EngineGeometry
-from dtid.simulator.kernel import INTEGRATION
+from dtid.simulator.kernel import INTEGRATION, SPEED_AVERAGES
 from dtid.simulator.parameters import VEHICLE_TABLES, read_toml
 
 ENGINE_LAG = ("none", "measured")
@@ -107,7 +109,7 @@ class VehicleData:
     """
 
     engine: EngineGeometry = dataclasses.field(default_factory=EngineGeometry)
-    speed_average: str = "speeds"
+    speed_average: str = SPEED_AVERAGES[0]
     given: tuple[str, ...] = ()
     source: str = "reference engine"
     integration: str = "euler"
@@ -116,7 +118,7 @@ class VehicleData:
     def describe(self) -> str:
         """One line on where the vehicle data come from."""
         if not self.given:
-            return "vehicle data: the reference engine's and eq. (9)'s speed sensor (no --vehicle)"
+            return "vehicle data: the reference engine and tooth-timer speed sensor (no --vehicle)"
         return f"vehicle data: {', '.join(self.given)} from {self.source}, the rest the reference's"
 
     def as_dict(self) -> dict[str, dict[str, object]]:
@@ -165,9 +167,9 @@ def vehicle_data_from_tables(document: Mapping[str, object], source: str) -> Veh
         raise ConfigError(f"{source}: {', '.join(VEHICLE_TABLES)} must be tables")
     table, sensors, model = tables
     unknown = [key for key in sensors if key != "speed_average"]
-    average = sensors.get("speed_average", "speeds")
-    if unknown or average not in ("speeds", "times"):
-        raise ConfigError(f'{source}: [sensors] takes speed_average = "speeds" or "times" only')
+    average = sensors.get("speed_average", SPEED_AVERAGES[0])
+    if unknown or average not in SPEED_AVERAGES:
+        raise ConfigError(f'{source}: [sensors] takes speed_average = "times" or "speeds" only')
     integration = model.get("integration", "euler")
     lag = model.get("engine_lag", "none")
     unknown = [key for key in model if key not in ("integration", "engine_lag")]

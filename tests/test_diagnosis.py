@@ -111,11 +111,13 @@ TAU_M = 0.03
 
 @pytest.fixture(scope="module")
 def lagging(reference):
-    """A recording of the reference vehicle whose engine lags by :data:`TAU_M`, its runs."""
-    lagging = SimulationOptions(effects=Effects({"tau_m": TAU_M}))
+    """A recording of the reference vehicle whose engine lags by :data:`TAU_M`, its runs; with
+    eq. (9)'s speed sensor, as the lag's figures were measured (with a tooth timer the lag's
+    T/T_ecu fit reads it about 5 % long: docs/model-assumptions.md)."""
+    lagging = SimulationOptions(effects=Effects({"tau_m": TAU_M}), speed_average="speeds")
     plan = TestPlan(amplitudes_nm=(2.0, 5.0, 10.0), validation_nm=0.0, duration_s=40.0)
     data = from_simulation(simulate(reference, plan, lagging, seed=3))
-    tests = [MeasuredTest.from_data("lagging", data, 0.25, VehicleData())]
+    tests = [MeasuredTest.from_data("lagging", data, 0.25, VehicleData(speed_average="speeds"))]
     chosen = [("fit", identification_runs(tests)), ("validation", validation_runs(tests))]
     return data, chosen
 

@@ -107,8 +107,11 @@ def test_a_lagging_engines_strokes_are_read_through_its_lag(
     half its value (0.44 for 0.9), a later latch and a residual of 2.7 N*m; read through the lag
     (the kernel's recurrence, stroke times from the reports), the product's latch (three
     events), K to 0.1 % (slope 0.7 %) and a residual of 0.03 N*m, 0.13 % of the torque's
-    swing; the model then repeats |G_DRV| at the truth as it does a prompt engine's."""
-    options = SimulationOptions.clean(effects=Effects({"tau_m": 0.05}))
+    swing; the model then repeats |G_DRV| at the truth as it does a prompt engine's. With eq.
+    (9)'s speed sensor: with a tooth timer the lag's T/T_ecu fit reads 0.0528 s for 0.05 (0.0488
+    here) and the model repeats |G_DRV| to 0.65 dB at worst (0.20-0.25 RMS against 0.08-0.09):
+    found 2026-12-01, not yet explained (docs/model-assumptions.md)."""
+    options = SimulationOptions.clean(effects=Effects({"tau_m": 0.05}), speed_average="speeds")
     data = from_simulation(simulate(reference, PLAN, options))
     prompt, lagging = idle_loop(data), idle_loop(data, 0.05)
     swing = np.ptp(lagging.stroke_torque_nm)
@@ -117,7 +120,8 @@ def test_a_lagging_engines_strokes_are_read_through_its_lag(
     assert lagging.gain == pytest.approx(reference.K, rel=2e-3)
     assert lagging.engine_gain()[0] == pytest.approx(reference.K, rel=1e-2)
     assert lagging.residual_nm < 0.005 * swing
-    measured = MeasuredTest.from_data("lag", data, 0.25, VehicleData(engine_lag="measured"))
+    vehicle = VehicleData(engine_lag="measured", speed_average="speeds")
+    measured = MeasuredTest.from_data("lag", data, 0.25, vehicle)
     assert measured.loop.lag_s == pytest.approx(0.05, rel=0.1)
     assert _worst_db(reference, measured) < REPEATED_DB
 

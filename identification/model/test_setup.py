@@ -77,7 +77,7 @@ class MeasuredTest:
         """Find the runs, estimate their FRFs and the idle operating point.
 
         ``vehicle`` is what the model knows of the vehicle besides its drivetrain (the
-        reference engine and eq. (9)'s speed sensor by default).
+        reference engine and a tooth-timer speed sensor by default).
 
         A run that cannot give an FRF is kept in ``unusable`` with the reason:
         :func:`dtid.identification.search.identify.split_runs` leaves it out of the validation, or
