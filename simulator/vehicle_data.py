@@ -14,7 +14,7 @@ crank-synchronous speed), eq. (9) read literally averages the step speeds
 (:data:`dtid.simulator.kernel.SPEED_AVERAGES`). Which one a vehicle has is in its ECU's
 software documentation; its recording does not tell, because the identified drivetrain absorbs
 the difference (the optima of both fit alike), at the price of its parameters: the model with
-the wrong one fits random vehicles' truths worse on 7 of 7 (docs/model-assumptions.md).
+the wrong one fits random vehicles' truths worse on 6 of 7 (docs/model-assumptions.md).
 
 How the model integrates eq. (6) is the last choice here: the paper fixes the angle step
 (pi/30, eq. 8), not the scheme. ``"euler"`` (the default) is the paper's angle-discrete model,
