@@ -109,8 +109,9 @@ def test_a_lagging_engines_strokes_are_read_through_its_lag(
     events), K to 0.1 % (slope 0.7 %) and a residual of 0.03 N*m, 0.13 % of the torque's
     swing; the model then repeats |G_DRV| at the truth as it does a prompt engine's. With eq.
     (9)'s speed sensor: with a tooth timer the lag's T/T_ecu fit reads 0.0528 s for 0.05 (0.0488
-    here) and the model repeats |G_DRV| to 0.65 dB at worst (0.20-0.25 RMS against 0.08-0.09):
-    found 2026-12-01, not yet explained (docs/model-assumptions.md)."""
+    here) and the model repeats |G_DRV| to 0.65 dB at worst (0.20-0.25 RMS against 0.08-0.09);
+    given the true lag, to 0.02-0.05 dB RMS with either sensor: the lag's estimate is what the
+    tooth timer moves (2026-12-01, docs/model-assumptions.md)."""
     options = SimulationOptions.clean(effects=Effects({"tau_m": 0.05}), speed_average="speeds")
     data = from_simulation(simulate(reference, PLAN, options))
     prompt, lagging = idle_loop(data), idle_loop(data, 0.05)
