@@ -584,12 +584,6 @@ def dragged(tmp_path_factory) -> Path:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    reason="since the reference is a tooth timer (2026-12-01) the drag's refit ends at d3 0.001 "
-    "for 0.02 (p = 1) and nothing is named, though the map finds the mismatch: not yet mended "
-    "(docs/diagnosis.md)",
-    strict=False,
-)
 def test_a_concealed_gearbox_drag_is_named_refitted_and_improves_the_held_out_run(
     dragged, reference, tmp_path
 ):

@@ -445,15 +445,15 @@ def test_a_target_its_profile_interval_does_not_confirm_stays_unmet(
     assert document["intervals"]["Tc12"]["confirms"] is False
     assert document["intervals"]["c12"]["confirms"] is True
 
-    # +-40 %: an hour of chirps more does not reach it (the campaign trial's truth 5, -37/+30 %,
-    # needs 3,570 s since the Welch segments take a fast FFT length, 2026-11-30)
-    wider = _identification({"Tc12": (0.6 * friction, 1.4 * friction)})
+    # +-60 %: an hour of chirps more does not reach it (+-40 %, the campaign trial's truth 5,
+    # sits on the hour's edge: 3,570 s on 2026-11-30, within it with the libraries of 2026-12-03)
+    wider = _identification({"Tc12": (0.4 * friction, 1.6 * friction)})
     beyond = recommend_confirmed(
         information, DEFAULT_TARGETS_PERCENT, wider, recorded=done, **limits
     )
     assert [u.name for u in beyond.unmet] == ["Tc12"]
     (entry,) = plan_document(information, beyond, DEFAULT_TARGETS_PERCENT, shown)["unmet"]
-    assert entry["predicted_percent"] == pytest.approx(40.0) and "does not reach" in entry["reason"]
+    assert entry["predicted_percent"] == pytest.approx(60.0) and "does not reach" in entry["reason"]
 
     opened = _identification({"eps23": (0.99 * reference_parameters().eps23, None)})
     (check,) = recommend_confirmed(
