@@ -20,6 +20,7 @@ from dtid.identification.search.parameterization import (
     theta_from_parameters,
     theta_to_arrays,
 )
+from dtid.simulator.mechanisms import BY_NAME, MECHANISMS, Effects, kernel_parameters
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 
@@ -144,3 +145,40 @@ def test_the_vehicles_strokes_are_repeated(
     out_of_phase = model_drv_db(reference.as_array()[None], shifted)[0][0]
     assert np.abs(in_phase - measured).max() < 0.6
     assert np.abs(out_of_phase - measured).max() > 1.0
+
+
+REPLAYED_ALIKE_DB = 0.3
+"""RMS dB by which the replay of a clean recording at its truth may depart from the recording's
+|G_DRV| when a mechanism is concealed: measured 0.01-0.16 dB across the library at the middle of
+each typical range (2026-12-03), 0.03 / 0.06 dB for the paper's plant itself."""
+
+
+@pytest.mark.parametrize(
+    "mechanism",
+    [m.name for m in MECHANISMS if m.name not in ("torque_lag", "torque_sensor_gain")],
+)
+def test_the_replay_at_the_truth_repeats_a_clean_recording_with_any_mechanism(
+    reference: DrivetrainParameters, mechanism: str
+) -> None:
+    """The replay (recorded request, the model's own speed tracking, a start from rest 3 s
+    before each run) must hold each mechanism's physics as the vehicle does: at the truth with
+    the concealed mechanism it repeats a noise-free recording's |G_DRV| within
+    REPLAYED_ALIKE_DB at 5 and 10 N*m, and without the mechanism it departs (bar the asymmetric
+    play, which no mean torque shows in neutral). A start 2.1 N*m out of the drag's balance was
+    2.9 dB off. (The torque lag is replayed through its measured lag, the sensor gain scales the
+    measurement alone: tests/test_idle_loop.py and tests/test_mechanisms.py.)"""
+    spec = BY_NAME[mechanism]
+    effects = Effects({q.name: 0.5 * sum(q.typical) for q in spec.parameters})
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=20.0)
+    options = dataclasses.replace(SimulationOptions.clean(), effects=effects)
+    data = from_simulation(simulate(reference, plan, options))
+    measured = MeasuredTest.from_data("clean", data, 0.25)
+    truth = reference.as_array()
+    rows = np.stack([kernel_parameters(truth), kernel_parameters(truth, effects)])
+    model = model_drv_db(rows, measured.model_test([0, 1]))
+    pairs = zip(measured.estimates, model, strict=True)
+    rms = np.array([np.sqrt(np.mean((db - e.drv_db) ** 2, axis=1)) for e, db in pairs])
+    # (runs, [without, with])
+    assert (rms[:, 1] < REPLAYED_ALIKE_DB).all(), rms
+    if mechanism != "asymmetric_play":
+        assert rms[:, 0].max() > 2 * REPLAYED_ALIKE_DB, rms
