@@ -14,7 +14,7 @@ from dtid.identification.samples.testdata import from_simulation
 from dtid.simulator.controller import IdleController
 from dtid.simulator.kernel import Job, advance, initial_state, run_plant, run_plant_batch
 from dtid.simulator.linear import three_mass_frf
-from dtid.simulator.mechanisms import kernel_parameters
+from dtid.simulator.mechanisms import Effects, kernel_parameters
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import (
     SimulationOptions,
@@ -282,14 +282,11 @@ def test_the_plant_starts_in_its_mean_torque_balance_with_a_drag_to_ground(
     the speed tens of rpm low through a run. With an idle controller of almost no gain and no
     noise, the speed stays on the set-point only if the start balances T_loss + d3 w
     (unbalanced, the 2.1 N*m at 1000 rpm would decelerate the 0.3 kg*m^2 by about 60 rpm/s)."""
-    from dtid.simulator.mechanisms import Effects
-
     weak = IdleController(kp_nm_per_rpm=1e-4, ki_nm_per_rpm_s=1e-6)
-    quiet = {"combustion_variation": 0.0, "speed_noise_rpm": 0.0, "torque_noise_nm": 0.0}
     plan = TestPlan(amplitudes_nm=(0.01,), validation_nm=0.0, duration_s=2.0)
     for d3 in (0.0, 0.02):
-        options = SimulationOptions(
-            controller=weak, effects=Effects({"d3": d3}), pulsation=False, **quiet
+        options = SimulationOptions.clean(
+            controller=weak, effects=Effects({"d3": d3}), pulsation=False
         )
         result = simulate(reference, plan, options)
         assert abs(np.mean(result.speed_rpm) - weak.setpoint_rpm) < 2.0, d3

@@ -457,13 +457,13 @@ def stroke_lag(
     centre = math.log(guess_s)
     span = math.log(LAG_BRACKET)
     grid = np.linspace(centre - span, centre + span, LAG_GRID)
-    best = int(np.argmin([residual(x) for x in grid]))
-    step = grid[1] - grid[0]
+    values = [residual(x) for x in grid]
+    best = int(np.argmin(values))
     lo, hi = grid[max(best - 1, 0)], grid[min(best + 1, LAG_GRID - 1)]
     found = optimize.minimize_scalar(
-        residual, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * step}
+        residual, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3 * (grid[1] - grid[0])}
     )
-    return float(math.exp(found.x if found.fun <= residual(grid[best]) else grid[best]))
+    return float(math.exp(found.x if found.fun <= values[best] else grid[best]))
 
 
 def stroke_lagged(taken: np.ndarray, report_t: np.ndarray, lag_s: float) -> np.ndarray:
