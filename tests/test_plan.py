@@ -32,6 +32,7 @@ from dtid.identification.planning.design import (
     recommend,
     recommend_confirmed,
     recorded_spread,
+    wider_than_targets,
 )
 from dtid.identification.planning.information import (
     RESOLUTION_HZ,
@@ -478,3 +479,47 @@ def test_a_campaign_round_tests_each_target_at_its_half_width() -> None:
     assert got == pytest.approx({"c12": 6.0, "Tc12": 0.2 * 0.2, "x1": 0.05 * 0.4})
     with pytest.raises(ConfigError, match="eps99"):
         _campaign_widths({"targets": {"eps99": 5.0}})
+
+
+def test_intervals_wider_than_the_targets_are_named_against_the_value_they_are_relative_to(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """An interval reaching past a target on either side, or open, is named with its ends in %
+    of the value (of the planning floor where the value lies below it: a friction identified
+    at 0 is planned relative to 0.2 N*m); one within it, or a name without a target, is not.
+    `dtid identify` prints them with the follow-up command."""
+    theta = {"c23": 40.0, "eps12": 0.05, "Tc12": 0.0, "d12": 1.0, "K": 0.9}
+    intervals = {
+        "c23": (36.0, 44.0),  # +-10 % for 5 %
+        "eps12": (0.049, 0.051),  # +-2 % for 5 %
+        "Tc12": (None, 0.1),  # open below; 0.1 N*m is 50 % of the floor 0.2 for 20 %
+        "d12": (0.9, 1.1),  # +-10 % for 20 %
+        "K": (0.0, 2.0),  # no target
+    }
+    wide = wider_than_targets(theta, intervals)
+    assert list(wide) == ["c23", "Tc12"]
+    assert wide["c23"] == pytest.approx((-10.0, 10.0))
+    assert wide["Tc12"][0] is None and wide["Tc12"][1] == pytest.approx(50.0)
+    assert wider_than_targets(theta, intervals, {"c23": 12.0, "Tc12": 60.0}) == {
+        "Tc12": wide["Tc12"]
+    }
+    from dtid.cli.commands.identify import print_report
+
+    document = {
+        "parameters": theta,
+        "intervals": {n: {"lower": lo, "upper": hi} for n, (lo, hi) in intervals.items()},
+        "identifiable": {},
+        "identifiability_notes": {},
+        "nrmse": {},
+        "combustion_variation": {},
+        "idle_loop": {},
+        "parameter_sets": 1,
+        "seconds": 1.0,
+    }
+    print_report(document, {}, "dtid plan --prior id.json --after a.blf")
+    out = capsys.readouterr().out
+    assert (
+        "default targets (95 % interval, % of the value): c23 -10/+10 (target 5), "
+        "Tc12 open/+50 (target 20)\n" in out
+    )
+    assert "the follow-up test that reaches them: dtid plan --prior id.json --after a.blf" in out

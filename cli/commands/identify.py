@@ -5,7 +5,8 @@ The two largest amplitudes identify and the others validate (the paper: 5 and 10
 parameters the data pin down. One 60 s test at 5 and 10 N*m pins the inertias, stiffnesses and
 the DMF play to a few per cent, but the gear play only to about 4-13 % and the DMF friction to
 30-80 % (one standard deviation, simulated): read the intervals and the verdicts, not only the
-values.
+values. Intervals wider than ``dtid plan``'s default targets are listed after them, with the
+``dtid plan --after`` command that designs the follow-up test reaching them.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from dtid.cli.commands.common import (
 )
 from dtid.errors import ConfigError
 from dtid.identification.pipeline import OPERATING_POINT
+from dtid.identification.planning.design import DEFAULT_TARGETS_PERCENT, wider_than_targets
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.parameterization import PRIOR_SPAN, THETA_NAMES
 from dtid.simulator.parameters import load_parameters, reference_parameters
@@ -154,8 +156,14 @@ def search_settings(args: argparse.Namespace) -> SearchSettings:
     )
 
 
-def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> None:
-    """The identified parameters, intervals, verdicts and NRMSEs of a result on the terminal."""
+def print_report(
+    document: Mapping[str, Any], fixed: Mapping[str, float], follow_up: str | None = None
+) -> None:
+    """The identified parameters, intervals, verdicts and NRMSEs of a result on the terminal.
+
+    ``follow_up`` is the ``dtid plan`` command that designs the test reaching the targets the
+    intervals miss (:func:`wide_intervals`); printed after them where some do.
+    """
     for name, value in document["parameters"].items():
         interval = document["intervals"].get(name)
         verdict = document["identifiable"].get(name, "fixed" if name in fixed else "")
@@ -168,6 +176,11 @@ def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> Non
         print(f"{name:>6} = {value:<12.5g} {span:<26} {verdict}")
     for note in dict.fromkeys(document["identifiability_notes"].values()):
         print(f"not identifiable: {note}")
+    wide = wide_intervals(document)
+    if wide:
+        print(f"wider than dtid plan's default targets (95 % interval, % of the value): {wide}")
+        if follow_up:
+            print(f"the follow-up test that reaches them: {follow_up}")
     for role, values in document["nrmse"].items():
         for label, value in values.items():
             print(f"NRMSE {role:<10} {label}: {value:.3f}")
@@ -199,6 +212,37 @@ def print_report(document: Mapping[str, Any], fixed: Mapping[str, float]) -> Non
             f"({outcome})"
         )
     print(f"{document['parameter_sets']} parameter sets simulated in {document['seconds']:.0f} s")
+
+
+def wide_intervals(document: Mapping[str, Any]) -> str:
+    """The intervals of a result that reach past ``dtid plan``'s default targets, one phrase
+    each (``c23 -51.4/+27 (target 5)``, ``Tc12 open (target 20)``); empty where none does."""
+    intervals = {
+        name: (interval["lower"], interval["upper"])
+        for name, interval in document["intervals"].items()
+        if interval
+    }
+    phrases = []
+    for name, ends in wider_than_targets(document["parameters"], intervals).items():
+        if ends == (None, None):
+            span = "open"
+        else:
+            span = "/".join("open" if end is None else f"{end:+.3g}" for end in ends)
+        phrases.append(f"{name} {span} (target {DEFAULT_TARGETS_PERCENT[name]:g})")
+    return ", ".join(phrases)
+
+
+def follow_up_command(args: argparse.Namespace) -> str:
+    """The ``dtid plan`` command that plans a follow-up to these recordings at this result."""
+    if not args.json:
+        return "write this result with --json ID.json, then dtid plan --prior ID.json --after " + (
+            " ".join(str(r) for r in args.recordings)
+        )
+    words = ["dtid plan", "--prior", str(args.json), "--after", *map(str, args.recordings)]
+    for option in ("dbc", "signals", "vehicle"):
+        if getattr(args, option, None):
+            words += [f"--{option}", str(getattr(args, option))]
+    return " ".join(words)
 
 
 def parse_fixed(items: list[str]) -> dict[str, float]:
@@ -250,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
         profile_points=args.profile_points,
         progress=_progress,
     )
-    print_report(report.as_dict(), fixed)
+    print_report(report.as_dict(), fixed, follow_up_command(args))
     print(vehicle.describe())
     if args.json:
         report.to_json(args.json)

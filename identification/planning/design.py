@@ -743,10 +743,54 @@ def target_half_widths(
         Targets by name, %.
     """
     return {
-        name: target / 100.0 * max(float(theta[name]), planning_floor(name))
+        name: target / 100.0 * relative_to(name, theta[name])
         for name, target in targets.items()
         if name in theta
     }
+
+
+def relative_to(name: str, value: float) -> float:
+    """The value a target or a precision of ``name`` is relative to, SI units: ``value``, at
+    least its :func:`planning_floor`."""
+    return max(float(value), planning_floor(name))
+
+
+def wider_than_targets(
+    theta: Mapping[str, float],
+    intervals: Mapping[str, tuple[float | None, float | None]],
+    targets: Mapping[str, float] = DEFAULT_TARGETS_PERCENT,
+) -> dict[str, tuple[float | None, float | None]]:
+    """The identified parameters whose 95 % interval reaches past a target's half-width.
+
+    A 95 % interval spans about :data:`SIGMAS` standard deviations on each side, as a target
+    does, so an interval wider than the target on either side says the test did not reach it
+    (and ``dtid plan --after`` can design the one that does).
+
+    Parameters
+    ----------
+    theta
+        Identified values by setup-4 name, SI units.
+    intervals
+        (lower, upper) by name, SI units; None for an open end.
+    targets
+        Targets by name, % (at :data:`SIGMAS` sigma) of the value, at least of its
+        :func:`planning_floor`, as :func:`target_half_widths` reads them.
+
+    Returns
+    -------
+    dict
+        By name, in the order of ``intervals``: each end's distance from the value in % of the
+        value the target is relative to (negative below), None for an open end.
+    """
+    wide: dict[str, tuple[float | None, float | None]] = {}
+    for name, ends in intervals.items():
+        if name not in targets or name not in theta:
+            continue
+        value, scale = float(theta[name]), relative_to(name, theta[name])
+        percent = tuple(None if end is None else 100.0 * (end - value) / scale for end in ends)
+        if any(p is None or abs(p) > targets[name] for p in percent):
+            wide[name] = (percent[0], percent[1])
+    return wide
 
 
 def recorded_spread(info: PlanInformation, recorded: Sequence[Design]) -> dict[str, float]:
