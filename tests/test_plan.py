@@ -398,6 +398,17 @@ def test_dtid_plan_after_a_recording_plans_its_follow_up(
     assert "identify the recordings of both tests together with --identify" in printed
     assert "unmet Tc12: its 95 % profile interval" in printed
 
+    # a recording that only validated the identification may come along (the paper's layout
+    # of ../shared/independent: one file per chirp), one it did not use may not
+    validation = tmp_path / "paper-2nm.blf"
+    made["nrmse"] = {"fit": {}, "validation": {f"{validation} @ 2 N*m": 0.1}}
+    identification.write_text(json.dumps(made))
+    given = argparse.Namespace(prior=identification, after=[recording, validation])
+    assert recorded_identification(given) is not None
+    assert "identified from other recordings" not in capsys.readouterr().out
+    given = argparse.Namespace(prior=identification, after=[recording, tmp_path / "x.blf"])
+    assert recorded_identification(given) is None
+    assert "identified from other recordings" in capsys.readouterr().out
     made["combustion_variation"] = {str(tmp_path / "other.blf"): 0.03}
     identification.write_text(json.dumps(made))
     given = argparse.Namespace(prior=identification, after=[recording])

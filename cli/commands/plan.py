@@ -198,8 +198,15 @@ def recorded_identification(args: argparse.Namespace) -> dict | None:
     if not args.after or args.prior is None or not _is_identification(args.prior):
         return None
     document = read_identification(args.prior, "--prior")
-    made_of = set(document.get("combustion_variation") or {})
-    if {Path(name).resolve() for name in made_of} != {Path(p).resolve() for p in args.after}:
+    made_of = set(document.get("combustion_variation") or {})  # the identifying recordings
+    # and those that only validated: the NRMSEs' labels are "RECORDING @ A N*m" (pipeline.py)
+    validated = {
+        label.rpartition(" @ ")[0] for label in (document.get("nrmse") or {}).get("validation", {})
+    }
+    after = {Path(p).resolve() for p in args.after}
+    identifying = {Path(name).resolve() for name in made_of}
+    used = identifying | {Path(name).resolve() for name in validated}
+    if not identifying <= after <= used:
         print(
             f"note: --prior {args.prior} was identified from other recordings than --after's "
             f"({', '.join(sorted(made_of)) or 'none named'}): its intervals do not confirm "

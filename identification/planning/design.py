@@ -36,7 +36,7 @@ import numpy as np
 
 from dtid.acquisition.config import SafetyConfig
 from dtid.acquisition.plan import TestPlan, in_rounds
-from dtid.errors import ConfigError
+from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.frf.closed_loop import sweep_edge_hz
 from dtid.identification.frf.runs import ChirpRun
 from dtid.identification.model.test_setup import MeasuredTest
@@ -491,6 +491,9 @@ def recommend(
             ratios = _ratios(vehicles, before, (low, high), duration, band, counts, index, needed)
             if ratios is None:
                 continue
+            # a prediction that is not finite (information the simulator could not measure)
+            # can neither meet a target nor come closest
+            ratios = np.where(np.isfinite(ratios), ratios, np.inf)
             worst = np.max(ratios, axis=0)
             typical = np.exp(np.mean(np.log(ratios), axis=0))
             for (n_low, n_high), ratio, shortfall in zip(counts, worst, typical, strict=True):
@@ -508,8 +511,14 @@ def recommend(
                     key = (design.test_time_s, float(ratio))
                     if best is None or key < best[0]:
                         best = (key, design)
-                if closest is None or shortfall < closest[0]:
+                if np.isfinite(shortfall) and (closest is None or shortfall < closest[0]):
                     closest = (float(shortfall), design)
+    if closest is None and tried:
+        raise AnalysisError(
+            "no test's precision could be predicted: the information measured at the prior "
+            "(or at a vehicle around it) is not finite, so a parameter set there could not be "
+            "simulated; plan with --spread 0, or at another --prior"
+        )
     if closest is None:
         raise ConfigError(
             f"no test fits in --max-time {max_time_s:g} s: the shortest (one "
