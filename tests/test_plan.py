@@ -534,3 +534,19 @@ def test_intervals_wider_than_the_targets_are_named_against_the_value_they_are_r
         "Tc12 open/+50 (target 20)\n" in out
     )
     assert "the follow-up test that reaches them: dtid plan --prior id.json --after a.blf" in out
+
+
+def test_the_information_is_finite_at_a_prior_outside_its_own_plus_minus_100_percent_box() -> None:
+    """A gearbox inertia 4 % of the total (x12 = 0.96, as vehicle_1 of ../shared/independent
+    has 5 % and a vehicle drawn around it less): the prior's +-100 % box caps x12 at 0.95, its
+    finite differences clipped to the box were 0/0, and `dtid plan --after` recommended the
+    first design it tried. Measured in the identification's own box the information is finite,
+    and x12's sensitivity is not zero."""
+    prior = reference_parameters().replace(J3=0.01)
+    assert (prior.J1 + prior.J2) / (prior.J1 + prior.J2 + prior.J3) == pytest.approx(0.96)
+    plan = TestPlan(duration_s=30.0)
+    info = measure_information(prior, (5.0, 10.0), reference=plan, seeds=2)
+    x12 = THETA_NAMES.index("x12")
+    for level in info.levels:
+        assert np.isfinite(level.jacobian_db).all()
+        assert np.abs(level.jacobian_db[:, x12]).max() > 0
