@@ -17,7 +17,7 @@ from dtid.acquisition.config import load_config
 from dtid.acquisition.plan import TestPlan, in_rounds, plan_from_file
 from dtid.cli import main
 from dtid.cli.commands.plan import recorded_identification
-from dtid.errors import ConfigError
+from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.planning.design import (
@@ -550,3 +550,18 @@ def test_the_information_is_finite_at_a_prior_outside_its_own_plus_minus_100_per
     for level in info.levels:
         assert np.isfinite(level.jacobian_db).all()
         assert np.abs(level.jacobian_db[:, x12]).max() > 0
+
+
+def test_a_prediction_that_is_not_finite_is_never_recommended(
+    information: PlanInformation,
+) -> None:
+    """Information with a NaN (a parameter set the simulator could not measure at a vehicle
+    around the prior) once made `dtid plan` recommend the first design it tried; now such a
+    vehicle makes no design recommendable, and the plan says why."""
+    level = information.levels[1]
+    broken = dataclasses.replace(level, jacobian_db=np.full_like(level.jacobian_db, np.nan))
+    around = dataclasses.replace(
+        information, levels=(information.levels[0], broken, *information.levels[2:])
+    )
+    with pytest.raises(AnalysisError, match="not finite"):
+        recommend(dataclasses.replace(information, around=(around,)), DEFAULT_TARGETS_PERCENT, 10.0)

@@ -491,9 +491,6 @@ def recommend(
             ratios = _ratios(vehicles, before, (low, high), duration, band, counts, index, needed)
             if ratios is None:
                 continue
-            # a prediction that is not finite (information the simulator could not measure)
-            # can neither meet a target nor come closest
-            ratios = np.where(np.isfinite(ratios), ratios, np.inf)
             worst = np.max(ratios, axis=0)
             typical = np.exp(np.mean(np.log(ratios), axis=0))
             for (n_low, n_high), ratio, shortfall in zip(counts, worst, typical, strict=True):
@@ -511,6 +508,8 @@ def recommend(
                     key = (design.test_time_s, float(ratio))
                     if best is None or key < best[0]:
                         best = (key, design)
+                # a prediction that is not finite (information the simulator could not
+                # measure) can neither meet a target (NaN <= 1 is false) nor come closest
                 if np.isfinite(shortfall) and (closest is None or shortfall < closest[0]):
                     closest = (float(shortfall), design)
     if closest is None and tried:
