@@ -428,7 +428,10 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
                 status = STATUS_BUFFER_FULL
                 break
             if by_times:  # a tooth timer: the window's angle over its time
-                mean_speed = N_WIN / np.sum(1.0 / window)
+                window_time = 0.0  # summed in place: np.sum(1.0 / window) allocated an array
+                for k in range(N_WIN):
+                    window_time += 1.0 / window[k]
+                mean_speed = N_WIN / window_time
             else:
                 mean_speed = window_sum / N_WIN
             measured = mean_speed * RPM_PER_RAD_S + sigma_speed * speed_noise[n_speed]
@@ -498,7 +501,7 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
             shifted = (angle_index - cylinder * STEPS_PER_STROKE) % STEPS_PER_CYCLE
             engine += held[cylinder] * combustion_shape[shifted]
         net = engine - t_loss
-        h = dt / n_sub
+        h = dt if n_sub == 1 else dt / n_sub  # the same bits; no division on the common path
         drift = 0.5 * h if verlet else 0.0  # before the kick; h - drift after it
         for _ in range(n_sub):
             mid12, mid23, mid14 = delta12, delta23, delta14
