@@ -138,8 +138,9 @@ N_RING = 8
 at most ``N_RING - 1``)."""
 
 # Layout of a plant state vector (see :func:`initial_state`): scalars, then the held mean torque
-# of each cylinder, the speed sensor's window of step speeds, and the rings of the controller's
-# past outputs and the ECU's past requests.
+# of each cylinder, the speed sensor's window of step speeds and their inverses (a tooth timer
+# adds up the latter, each divided once when it enters rather than at every sample), and the
+# rings of the controller's past outputs and the ECU's past requests.
 S_T, S_T_CONTROL, S_STEP, S_W1, S_W2, S_W3 = 0, 1, 2, 3, 4, 5
 S_DELTA12, S_DELTA23, S_BACKLASH, S_INTEGRAL, S_REQUEST, S_WINDOW_SUM, S_WINDOW_POS = (
     6,
@@ -155,7 +156,8 @@ S_LAG, S_W4, S_DELTA14 = 17, 18, 19  # the torque_lag and accessory_mode mechani
 N_SCALARS = 20
 O_HELD = N_SCALARS
 O_WINDOW = O_HELD + N_CYL
-O_COMMANDS = O_WINDOW + N_WIN
+O_INVERSES = O_WINDOW + N_WIN
+O_COMMANDS = O_INVERSES + N_WIN
 O_REQUESTS = O_COMMANDS + N_RING
 STATE_SIZE = O_REQUESTS + N_RING
 """Length of a plant state vector."""
@@ -288,7 +290,8 @@ def initial_state(params: np.ndarray, loop: Loop, test_nm: float) -> np.ndarray:
     state[S_REQUEST] = integral + test_nm
     state[S_LAST_MEASURED] = reference[0]
     state[O_HELD:O_WINDOW] = load
-    state[O_WINDOW:O_COMMANDS] = w_set
+    state[O_WINDOW:O_INVERSES] = w_set
+    state[O_INVERSES:O_COMMANDS] = 1.0 / w_set
     state[O_COMMANDS:O_REQUESTS] = integral
     state[O_REQUESTS:] = state[S_REQUEST]
     state[S_WINDOW_SUM] = N_WIN * w_set
@@ -408,12 +411,21 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
     window_sum, window_pos = state[S_WINDOW_SUM], int(state[S_WINDOW_POS])
     ring_pos = int(state[S_RING_POS])
     held = state[O_HELD:O_WINDOW]  # views: updated in place
-    window = state[O_WINDOW:O_COMMANDS]
+    window = state[O_WINDOW:O_INVERSES]
+    inverses = state[O_INVERSES:O_COMMANDS]
     commands = state[O_COMMANDS:O_REQUESTS]
     requests = state[O_REQUESTS:]
     n_requests = request_t.shape[0]
     received = 0  # requests received so far
     n_reference, n_drive = reference.shape[0], drive.shape[0]
+
+    # each cylinder's combustion shape (eq. 2) at each angle of the cycle, looked up once here
+    # rather than by a modulo per cylinder and step (an eighth of the step's time)
+    firing_shape = np.empty((STEPS_PER_CYCLE, N_CYL))
+    for angle in range(STEPS_PER_CYCLE):
+        for cylinder in range(N_CYL):
+            shifted = (angle - cylinder * STEPS_PER_STROKE) % STEPS_PER_CYCLE
+            firing_shape[angle, cylinder] = combustion_shape[shifted]
 
     n_speed = 0
     n_torque = 0
@@ -428,9 +440,9 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
                 status = STATUS_BUFFER_FULL
                 break
             if by_times:  # a tooth timer: the window's angle over its time
-                window_time = 0.0  # summed in place: np.sum(1.0 / window) allocated an array
+                window_time = 0.0
                 for k in range(N_WIN):
-                    window_time += 1.0 / window[k]
+                    window_time += inverses[k]
                 mean_speed = N_WIN / window_time
             else:
                 mean_speed = window_sum / N_WIN
@@ -498,8 +510,7 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
         dt = STEP_RAD / w1
         engine = compression[angle_index] + inertia[angle_index] * w1 * w1
         for cylinder in range(N_CYL):
-            shifted = (angle_index - cylinder * STEPS_PER_STROKE) % STEPS_PER_CYCLE
-            engine += held[cylinder] * combustion_shape[shifted]
+            engine += held[cylinder] * firing_shape[angle_index, cylinder]
         net = engine - t_loss
         h = dt if n_sub == 1 else dt / n_sub  # the same bits; no division on the common path
         drift = 0.5 * h if verlet else 0.0  # before the kick; h - drift after it
@@ -543,6 +554,8 @@ def advance(state: np.ndarray, loop: Loop, job: Job, t_end: float) -> tuple[int,
 
         window_sum += w1 - window[window_pos]
         window[window_pos] = w1
+        if by_times:
+            inverses[window_pos] = 1.0 / w1
         window_pos = (window_pos + 1) % N_WIN
         t += dt
         step += 1
