@@ -173,8 +173,9 @@ def test_the_replay_at_the_truth_repeats_a_clean_recording_with_any_mechanism(
     the concealed mechanism it repeats a noise-free recording's |G_DRV| within
     REPLAYED_ALIKE_DB (median over the bins) at 5 and 10 N*m, and without the mechanism it
     departs by DEPARTS_DB RMS (bar the asymmetric play, which no mean torque shows in neutral).
-    A start 2.1 N*m out of the drag's balance was 2.9 dB off. (The torque lag is replayed through its measured lag, the sensor gain scales the
-    measurement alone: tests/test_idle_loop.py and tests/test_mechanisms.py.)"""
+    A start 2.1 N*m out of the drag's balance was 2.9 dB off. (The torque lag is replayed
+    through its measured lag, the sensor gain scales the measurement alone:
+    tests/test_idle_loop.py and tests/test_mechanisms.py.)"""
     spec = BY_NAME[mechanism]
     effects = Effects({q.name: 0.5 * sum(q.typical) for q in spec.parameters})
     plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=20.0)
