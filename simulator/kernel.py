@@ -139,7 +139,8 @@ at most ``N_RING - 1``)."""
 
 # Layout of a plant state vector (see :func:`initial_state`): scalars, then the held mean torque
 # of each cylinder, the speed sensor's window of step speeds and their inverses (a tooth timer
-# adds up the latter, each divided once when it enters rather than at every sample), and the
+# adds up the latter, each divided once when it enters rather than at every sample; kept only
+# while the sensor is a tooth timer, which a run does not change), and the
 # rings of the controller's past outputs and the ECU's past requests.
 S_T, S_T_CONTROL, S_STEP, S_W1, S_W2, S_W3 = 0, 1, 2, 3, 4, 5
 S_DELTA12, S_DELTA23, S_BACKLASH, S_INTEGRAL, S_REQUEST, S_WINDOW_SUM, S_WINDOW_POS = (

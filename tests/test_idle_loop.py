@@ -123,7 +123,7 @@ def test_a_lagging_engines_strokes_are_read_through_its_lag(
     with eq. (9)'s, and the model then repeats |G_DRV| at the truth to 0.05-0.07 dB RMS (from
     T/T_ecu's lag 0.20-0.25 dB RMS with a tooth timer; 2026-12-03 and 2026-12-04). Its worst
     bin is the host's: 0.13-0.22 dB on one host, 0.37 dB with a tooth timer on an AVX-512 host
-    (one bin near the stroke alias, where the free play's jump turns the last bits of numpy's
+    (one bin near the stroke alias, where the free play's jump turns the last bits of the host's
     arithmetic into tenths of a decibel), so the RMS is asserted."""
     options = SimulationOptions.clean(effects=Effects({"tau_m": 0.05}), speed_average=sensor)
     data = from_simulation(simulate(reference, PLAN, options))
