@@ -392,6 +392,14 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
             row.append(escape(_target_cell(tests[name])) if name in tests else "-")
         rows.append(row)
     parts.append(table_html(headers, rows, numeric=(1,)))
+    for name, edge in (document.get("at_bounds") or {}).items():
+        parts.append(
+            f"<p class='warn'>{escape(name)} ended at the {escape(edge['side'])} end of its"
+            f" search box ({_num(edge['lower'])} - {_num(edge['upper'])}"
+            f" {escape(units.get(name, ''))}): the vehicle may lie beyond it, and the parameters"
+            " that trade with it are bent to make up. Widen the box with <code>--bounds</code>"
+            " if it can.</p>"
+        )
     if tests:
         parts.append(
             "<p>Target tests (an adaptive campaign's round): the likelihood-ratio test at the"

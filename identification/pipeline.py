@@ -389,6 +389,20 @@ class IdentificationReport:
         units; empty when profiles were not asked for."""
         return {name: prof.interval for name, prof in self.profiles.items()}
 
+    @property
+    def at_bounds(self) -> dict[str, dict[str, object]]:
+        """The free parameters that ended on an edge of the search box the vehicle could lie
+        beyond (:meth:`dtid.identification.search.parameterization.Parameterization.at_edges`):
+        ``side`` (``upper`` or ``lower``) and the box's ``lower`` and ``upper``, SI units."""
+        par = self.parameterization
+        if par is None:
+            return {}
+        out: dict[str, dict[str, object]] = {}
+        for name, side in par.at_edges(self.identification.theta).items():
+            lower, upper = par.bounds_of(name)
+            out[name] = {"side": side, "lower": lower, "upper": upper}
+        return out
+
     def to_json(self, path: str | os.PathLike[str] | None = None) -> str:
         """The JSON document of ``dtid identify`` (docs/schemas.md) as text, also written to
         ``path`` when one is given."""
@@ -454,6 +468,7 @@ class IdentificationReport:
             "vehicle_data": self.fit.tests[0].vehicle.as_dict() if self.fit else {},
             "objective": result.objective,
             "search_restart": self.restart.as_dict() if self.restart else None,
+            "at_bounds": self.at_bounds,
             "parameter_sets": result.parameter_sets,
             "seconds": result.seconds,
             "profiles": {
@@ -714,6 +729,8 @@ def identify_runs(
             objective_seconds=result.objective_seconds + moved.objective_seconds,
             stages={**result.stages, **{f"restart_{k}": v for k, v in moved.stages.items()}},
         )
+    for name, side in par.at_edges(result.theta).items():
+        logger.warning("%s", edge_warning(name, side, *par.bounds_of(name)))
     return IdentificationReport(
         result,
         with_structure(profiles, reasons),
@@ -725,6 +742,23 @@ def identify_runs(
         parameterization=par,
         restart=restart,
         target_tests=tested,
+    )
+
+
+def edge_warning(name: str, side: str, lower: float, upper: float) -> str:
+    """What a parameter that ended on an edge of its search box means, and the option that
+    widens the box, for the log (``side``: ``upper`` or ``lower``; the box in SI units)."""
+    unit = THETA_UNITS[name]
+    unit = "" if unit == "1" else f" {unit}"
+    if side == "upper":  # a mass ratio stays below 1
+        wider = (lower, (1 + upper) / 2 if name in ("x1", "x12") else 2 * upper)
+    else:
+        wider = (lower / 2, upper)
+    return (
+        f"{name} ended at the {side} end of its search box ({lower:.4g} to {upper:.4g}{unit}): "
+        "the vehicle may lie beyond it, and the parameters that trade with it are bent to make "
+        f"up; if it can, widen the box (--bounds {name}={wider[0]:.4g}:{wider[1]:.4g}) and "
+        "identify again"
     )
 
 

@@ -300,6 +300,31 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
     assert plot.stat().st_size > 10_000
 
 
+def test_identify_says_when_a_parameter_ends_on_its_search_box(
+    recording: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A box that leaves out the truth (c12 300 N*m/rad, the box 150-250): the estimate ends on
+    its upper edge, and the JSON, the log and the table say so; d12's lower bound is zero, a
+    physical end, and is not called an edge."""
+    out = tmp_path / "identify.json"
+    fix = ["J_sum=0.28", "x1=0.625", "x12=0.857", "c23=80", "d23=0.3", "Tc12=0.3"]
+    argv = ["identify", str(recording), "--fix", *fix, "eps23=0.012", "eps12=0.02"]
+    argv += ["--generations", "2", "--profile-points", "0", "--bounds", "c12=150:250"]
+    assert main([*argv, "--json", str(out)]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "identification")
+    assert document["parameters"]["c12"] == pytest.approx(250.0, rel=1e-3)
+    assert document["at_bounds"] == {"c12": {"side": "upper", "lower": 150.0, "upper": 250.0}}
+    assert "c12 ended at the upper end of its search box (150 to 250 N*m/rad)" in caplog.text
+    assert "--bounds c12=150:500" in caplog.text
+    table = capsys.readouterr().out.splitlines()
+    (line,) = [row for row in table if row.lstrip().startswith("c12 =")]
+    assert line.endswith("(at the search box's upper end)")
+
+
 def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "expected NAME=VALUE" in _error(capsys, ["identify", str(recording), "--fix", "J9=1"])
     assert "is not a number" in _error(capsys, ["identify", str(recording), "--fix", "c12=stiff"])

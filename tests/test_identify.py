@@ -144,6 +144,31 @@ def _identify_two(
     )
 
 
+def test_a_result_on_the_edge_of_its_box_is_named_with_its_side(
+    reference: DrivetrainParameters,
+) -> None:
+    """The default box (prior +-100 %): upper ends always, lower ends only above zero (no
+    friction is a value, not an edge); a gear coupling whose mode frequency is at the box's
+    top is on its edge though its stiffness, with a lighter gearbox side, is below the box's."""
+    par = Parameterization.around(reference, 10.0, 0.9)
+    theta = theta_from_parameters(reference)
+    assert par.at_edges(theta) == {}
+    lower_x1, upper_c12 = par.bounds_of("x1")[0], par.bounds_of("c12")[1]
+    edges = {"x1": lower_x1, "c12": upper_c12, "Tc12": 0.0, "d23": 0.0}
+    assert par.at_edges(theta | edges) == {"x1": "lower", "c12": "upper"}
+    lighter = theta_from_parameters(reference.replace(J3=0.5 * reference.J3))
+    top = par.modal_coordinates().theta(  # the gear mode's coordinate at 1, the rest as given
+        np.where(
+            np.array(par.free) == "c23",
+            1.0,
+            par.modal_coordinates().unit(np.array([[lighter[n] for n in THETA_NAMES]]))[0],
+        )[None]
+    )[0]
+    moved = dict(zip(THETA_NAMES, top, strict=True))
+    assert moved["c23"] < 0.9 * par.bounds_of("c23")[1]
+    assert par.at_edges(moved) == {"c23": "upper"}
+
+
 def test_linear_stiffness_and_damping_recovered(reference: DrivetrainParameters) -> None:
     """Without free play and friction the objective is smooth: c12 and d12 come back exactly."""
     linear = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0)

@@ -96,6 +96,21 @@ def test_a_campaign_rounds_target_tests_are_shown_with_their_outcome(
     assert _target_cell(at_zero) == "not confirmed at +-0.05: the estimate is at its bound below"
 
 
+def test_a_parameter_on_the_edge_of_its_search_box_is_flagged(
+    command_outputs: CommandOutputs, tmp_path: Path
+) -> None:
+    document = json.loads((command_outputs.folder / "identification.json").read_text())
+    assert document["at_bounds"] == {}  # the reference vehicle lies inside the default box
+    document["at_bounds"] = {"c23": {"side": "upper", "lower": 0.0, "upper": 300.0}}
+    validate(document, "identification")
+    path = tmp_path / "identification.json"
+    path.write_text(json.dumps(document))
+    out = tmp_path / "report.html"
+    command = ["report", str(command_outputs.recording), "--identification", str(path)]
+    assert main([*command, "-o", str(out)]) == 0
+    assert "c23 ended at the upper end of its search box (0 - 300 N*m/rad)" in out.read_text()
+
+
 def test_the_report_is_self_contained(report: Path) -> None:
     """Nothing is fetched when it opens: no script, no style sheet, no image by address."""
     text = report.read_text()

@@ -164,9 +164,12 @@ def print_report(
     ``follow_up`` is the ``dtid plan`` command that designs the test reaching the targets the
     intervals miss (:func:`wide_intervals`); printed after them where some do.
     """
+    edges = document.get("at_bounds", {})  # a document of an earlier version has none
     for name, value in document["parameters"].items():
         interval = document["intervals"].get(name)
         verdict = document["identifiable"].get(name, "fixed" if name in fixed else "")
+        if name in edges:
+            verdict = f"{verdict} (at the search box's {edges[name]['side']} end)".lstrip()
         span = ""
         if interval:
             lo, hi = interval["lower"], interval["upper"]

@@ -58,6 +58,10 @@ MIN_INERTIA_FRACTION = 0.05
 """Lower bound on J_sum (and on K where it is free) as a fraction of its prior, and the margin
 keeping x1, x12 in (0, 1): a vanishing inertia or engine gain cannot idle, so +-100 % bounds are
 narrowed there."""
+EDGE_TOLERANCE = 1e-3
+"""A result within this share of a parameter's box width from a bound ended on the box's edge
+(:meth:`Parameterization.at_edges`): the search's stages clip at the bounds, so a parameter
+pushed against one ends on it."""
 
 
 def passenger_car_bounds(
@@ -258,6 +262,26 @@ class Parameterization:
             for name, term in terms.items()
             if name not in self.fixed
         }
+
+    def at_edges(self, theta: Mapping[str, float]) -> dict[str, str]:
+        """The free parameters of a result (setup-4 values by name, SI units) that ended on an
+        edge of the box the vehicle could lie beyond: ``"upper"``, or ``"lower"`` where the
+        lower bound is above zero (zero is a physical end, not the box's). A stiffness is on
+        its edge also where its search coordinate is (its mode's frequency, :meth:`theta`),
+        within :data:`EDGE_TOLERANCE` of the box's width."""
+        row = np.array([[theta[n] for n in THETA_NAMES]])
+        coordinate = dict(zip(self.free, self.modal_coordinates().unit(row)[0], strict=True))
+        edges = {}
+        for name in self.free:
+            if name == "K":
+                continue
+            lo, hi = self.bounds_of(name)
+            position = (theta[name] - lo) / (hi - lo)
+            if max(position, coordinate[name]) >= 1 - EDGE_TOLERANCE:
+                edges[name] = "upper"
+            elif lo > 0 and min(position, coordinate[name]) <= EDGE_TOLERANCE:
+                edges[name] = "lower"
+        return edges
 
     def unit(self, theta: np.ndarray, gain: float | None = None) -> np.ndarray:
         """Normalised free values (n, n_free) of a full theta (n, 10) (and K when it is free)."""
