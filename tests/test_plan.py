@@ -327,6 +327,22 @@ def test_a_bad_request_is_refused_in_one_line(
     assert "does not exist" in capsys.readouterr().err
 
 
+def test_a_prior_identified_on_its_boxs_edge_is_planned_with_a_warning(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from dtid.cli.commands.plan import read_prior
+
+    reference = reference_parameters()
+    document = {"parameters": reference.as_dict(), "T_loss": reference.T_loss, "at_bounds": {}}
+    path = tmp_path / "id.json"
+    path.write_text(json.dumps(document))
+    assert read_prior(path) == reference and "search box" not in caplog.text
+    document["at_bounds"] = {"c23": {"side": "upper", "lower": 0.0, "upper": 300.0}}
+    path.write_text(json.dumps(document))
+    assert read_prior(path) == reference
+    assert "c23 (upper) ended on an edge of the identification's search box" in caplog.text
+
+
 def test_a_follow_up_counts_the_recorded_runs_in(information: PlanInformation) -> None:
     """After the paper's test the follow-up needs less than a test from scratch; after a test
     that met the targets, none."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -49,6 +50,8 @@ from dtid.simulator.parameters import (
 from dtid.simulator.simulate import SimulationOptions
 from dtid.simulator.vehicle_data import VehicleData
 from dtid.workflow import measured_tests
+
+logger = logging.getLogger(__name__)
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
@@ -164,6 +167,15 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
     missing = [name for name, value in table.items() if not isinstance(value, int | float)]
     if missing:
         raise ConfigError(f"--prior {path}: the identification has no {missing[0]!r}")
+    edges = document.get("at_bounds") or {}
+    if edges:
+        logger.warning(
+            "--prior %s: %s ended on an edge of the identification's search box; the plan is "
+            "made at values the vehicle may lie beyond (widen the box with dtid identify's "
+            "--bounds and identify again first)",
+            path,
+            ", ".join(f"{name} ({edge['side']})" for name, edge in edges.items()),
+        )
     return parse_parameters(table, str(path))
 
 
