@@ -505,6 +505,10 @@ def start_subprocess_daemon(tmp_path: Path) -> tuple[subprocess.Popen[str], str]
 
 def test_sigterm_aborts_with_zero_requests(tmp_path: Path) -> None:
     process, log_path = start_subprocess_daemon(tmp_path)
+    # the phase line comes from the daemon's loop, the requests from its sender thread: on a
+    # busy host the first enabled request followed the line by more than the signal did (CI of
+    # 2026-12-04); 0.3 s is 0.6 s of bus time into the 2 s chirp
+    time.sleep(0.3)
     process.send_signal(signal.SIGTERM)
     out, err = process.communicate(timeout=30)
     assert process.returncode == EXIT_ABORTED, err
