@@ -56,6 +56,18 @@ def test_the_report_holds_the_identification_and_diagnosis(
     assert "dtid simulate (seed 0)" in text  # the metadata travelled with the recording
 
 
+def _report_of(document: dict, command_outputs: CommandOutputs, tmp_path: Path) -> str:
+    """The report's text of the commands' recording with an edited identification JSON (checked
+    against its schema first)."""
+    validate(document, "identification")
+    path = tmp_path / "identification.json"
+    path.write_text(json.dumps(document))
+    out = tmp_path / "report.html"
+    command = ["report", str(command_outputs.recording), "--identification", str(path)]
+    assert main([*command, "-o", str(out)]) == 0
+    return out.read_text()
+
+
 def test_a_campaign_rounds_target_tests_are_shown_with_their_outcome(
     command_outputs: CommandOutputs, tmp_path: Path
 ) -> None:
@@ -79,13 +91,7 @@ def test_a_campaign_rounds_target_tests_are_shown_with_their_outcome(
             "margin": [0.0, 0.4, 0.3],
         }
     }
-    validate(document, "identification")
-    path = tmp_path / "identification.json"
-    path.write_text(json.dumps(document))
-    out = tmp_path / "report.html"
-    command = ["report", str(command_outputs.recording), "--identification", str(path)]
-    assert main([*command, "-o", str(out)]) == 0
-    text = out.read_text()
+    text = _report_of(document, command_outputs, tmp_path)
     assert "<th>target test</th>" in text
     assert "not confirmed at +-5 %: the end above fits" in text
     assert f"{0.97 * estimate:.4g} - open" in text
@@ -102,13 +108,8 @@ def test_a_parameter_on_the_edge_of_its_search_box_is_flagged(
     document = json.loads((command_outputs.folder / "identification.json").read_text())
     assert document["at_bounds"] == {}  # the reference vehicle lies inside the default box
     document["at_bounds"] = {"c23": {"side": "upper", "lower": 0.0, "upper": 300.0}}
-    validate(document, "identification")
-    path = tmp_path / "identification.json"
-    path.write_text(json.dumps(document))
-    out = tmp_path / "report.html"
-    command = ["report", str(command_outputs.recording), "--identification", str(path)]
-    assert main([*command, "-o", str(out)]) == 0
-    assert "c23 ended at the upper end of its search box (0 - 300 N*m/rad)" in out.read_text()
+    text = _report_of(document, command_outputs, tmp_path)
+    assert "c23 ended at the upper end of its search box (0 - 300 N*m/rad)" in text
 
 
 def test_the_report_is_self_contained(report: Path) -> None:
