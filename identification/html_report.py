@@ -393,12 +393,12 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
         rows.append(row)
     parts.append(table_html(headers, rows, numeric=(1,)))
     for name, edge in (document.get("at_bounds") or {}).items():
+        unit = "" if units.get(name, "1") == "1" else f" {escape(units[name])}"
         parts.append(
             f"<p class='warn'>{escape(name)} ended at the {escape(edge['side'])} end of its"
-            f" search box ({_num(edge['lower'])} - {_num(edge['upper'])}"
-            f" {escape(units.get(name, ''))}): the vehicle may lie beyond it, and the parameters"
-            " that trade with it are bent to make up. Widen the box with <code>--bounds</code>"
-            " if it can.</p>"
+            f" search box ({_num(edge['lower'])} - {_num(edge['upper'])}{unit}): the vehicle"
+            " may lie beyond it, and the parameters that trade with it are bent to make up."
+            " Widen the box with <code>--bounds</code> if it can.</p>"
         )
     if tests:
         parts.append(
