@@ -729,9 +729,7 @@ def identify_runs(
             objective_seconds=result.objective_seconds + moved.objective_seconds,
             stages={**result.stages, **{f"restart_{k}": v for k, v in moved.stages.items()}},
         )
-    for name, side in par.at_edges(result.theta).items():
-        logger.warning("%s", edge_warning(name, side, *par.bounds_of(name)))
-    return IdentificationReport(
+    report = IdentificationReport(
         result,
         with_structure(profiles, reasons),
         {**fixed, **operating},
@@ -743,6 +741,9 @@ def identify_runs(
         restart=restart,
         target_tests=tested,
     )
+    for name, edge in report.at_bounds.items():
+        logger.warning("%s", edge_warning(name, edge["side"], edge["lower"], edge["upper"]))
+    return report
 
 
 def edge_warning(name: str, side: str, lower: float, upper: float) -> str:
