@@ -115,6 +115,12 @@ def main() -> None:
         "guessed prior (with --adaptive each parameter within what the paper's test left "
         "open, as dtid plan --after does)",
     )
+    parser.add_argument(
+        "--uncorrelated",
+        action="store_true",
+        help="with --adaptive, draw the vehicles around the identified prior independently per "
+        "parameter (as before 2026-12-04), not along the errors the paper's test leaves",
+    )
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
 
@@ -151,6 +157,7 @@ def main() -> None:
         recorded=recorded,
         held_out_nm=held_out,
         spread=RECORDED if args.adaptive else args.spread / 100.0,
+        correlated=not args.uncorrelated,
     )
     design = recommendation.design
     assert design is not None, "the paper's test met every target"
@@ -242,6 +249,7 @@ def main() -> None:
                 "truth": str(args.independent) if args.independent else args.truth,
                 "setpoint_rpm": setpoint,
                 "adaptive": args.adaptive,
+                "correlated_spread": information_at_prior.spread_correlated,
                 "plan": design.as_dict(setpoint),
                 "test_time_s": design.test_time_s,
                 "spread_percent": {

@@ -31,6 +31,7 @@ from dtid.identification.planning.design import (
     predict_worst,
     recommend,
     recommend_confirmed,
+    recorded_correlation,
     recorded_spread,
     wider_than_targets,
 )
@@ -207,6 +208,56 @@ def test_a_follow_up_spreads_each_parameter_by_what_the_first_test_left_open(
     assert recorded_spread(information, []) == {}
 
 
+def test_vehicles_drawn_along_a_correlation_vary_as_it_says() -> None:
+    """With the identity the correlated draw is the independent one; with d12 and the friction
+    correlated -0.9 their offsets follow (64 vehicles: sample correlation within 0.1, each
+    offset's variance a third of its half-width squared within 25 %), the others stay
+    uncorrelated, and a matrix that is not a correlation is refused."""
+    prior = reference_parameters()
+    independent, identity = (
+        np.array([p.as_array() for p in spread_priors(prior, 0.4, 8, correlation)])
+        for correlation in (None, np.eye(len(DRIVETRAIN)))
+    )
+    assert identity == pytest.approx(independent, rel=1e-12)
+    correlation = np.eye(len(DRIVETRAIN))
+    i, j = DRIVETRAIN.index("d12"), DRIVETRAIN.index("Tc12")
+    correlation[i, j] = correlation[j, i] = -0.9
+    drawn = spread_priors(prior, 0.3, 64, correlation)
+    offsets = np.array([[getattr(p, n) / getattr(prior, n) - 1 for n in DRIVETRAIN] for p in drawn])
+    sample = np.corrcoef(offsets.T)
+    assert sample[i, j] == pytest.approx(-0.9, abs=0.1)
+    assert np.all(np.abs(np.delete(sample[i], [i, j])) < 0.4)
+    assert offsets.var(axis=0) == pytest.approx(np.full(len(DRIVETRAIN), 0.3**2 / 3), rel=0.25)
+    with pytest.raises(ValueError, match="correlation"):
+        spread_priors(prior, 0.3, 4, 2.0 * correlation)
+
+
+def test_the_errors_a_first_test_leaves_are_correlated_as_the_physics_says(
+    information: PlanInformation,
+) -> None:
+    """After the paper's test the predicted errors of the DMF's viscous damping and its friction
+    are anticorrelated (both damp the DMF's resonance: the test tells their sum better than
+    either); and the inertias' correlations, carried from setup 4 by their gradient, give
+    J1 + J2 + J3 the variance of J_sum itself."""
+    paper = [
+        Design((5.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
+        Design((10.0,), (1,), 60.0, 1.0, 15.0, validation_nm=0.0),
+    ]
+    correlation = recorded_correlation(information, paper)
+    assert recorded_correlation(information, []) is None
+    assert correlation is not None and correlation.shape == (len(DRIVETRAIN),) * 2
+    assert np.allclose(correlation, correlation.T) and np.allclose(np.diag(correlation), 1.0)
+    assert np.all(np.linalg.eigvalsh(correlation) > -1e-9)
+    assert correlation[DRIVETRAIN.index("d12"), DRIVETRAIN.index("Tc12")] < -0.5
+    precision = predict(information, None, paper)
+    prior = information.prior
+    sd = np.array([precision[n] * getattr(prior, n) for n in ("J1", "J2", "J3")])
+    inertias = [DRIVETRAIN.index(n) for n in ("J1", "J2", "J3")]
+    variance = sd @ correlation[np.ix_(inertias, inertias)] @ sd
+    j_sum = prior.J1 + prior.J2 + prior.J3
+    assert np.sqrt(variance) == pytest.approx(precision["J_sum"] * j_sum, rel=1e-6)
+
+
 def test_a_plan_for_several_vehicles_meets_the_hardest_ones_targets(
     information: PlanInformation,
 ) -> None:
@@ -296,7 +347,7 @@ def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFix
     document = json.loads(out.read_text())
     validate(document, "plan")
     spread = document["spread"]
-    assert (spread["percent"], spread["vehicles"]) == (40.0, 2)
+    assert (spread["percent"], spread["vehicles"], spread["correlated"]) == (40.0, 2, False)
     assert set(spread["percent_by_parameter"].values()) == {40.0}
     for name, value in document["predicted_precision"].items():
         assert value >= spread["predicted_precision_at_prior"][name]
@@ -401,6 +452,7 @@ def test_dtid_plan_after_a_recording_plans_its_follow_up(
     # the friction left wide open (86 % of its value; the cap 90 % before the model replayed
     # the recording's own combustion variation), the inertias pinned
     assert 50 < widths["Tc12"] <= 100 * MAX_SPREAD and widths["J1"] < 10
+    assert document["spread"]["correlated"]  # along the errors the recording leaves
     runs = document["recorded"]["runs"]
     assert sorted(round(r["amplitude_nm"]) for r in runs) == [5, 10]
     assert all(abs(r["duration_s"] - 30) < 0.5 for r in runs)

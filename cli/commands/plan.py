@@ -137,7 +137,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="PERCENT|recorded",
         help="plan for vehicles around the prior too, each drivetrain parameter within "
         "+-PERCENT of its value, or with 'recorded' within what --after's runs leave open (2 "
-        "sigma of their precision, each parameter its own): the test must meet every target on "
+        "sigma of their precision, each parameter its own, drawn along their predicted error "
+        "correlation): the test must meet every target on "
         f"each (default: {DEFAULT_SPREAD_PERCENT:g} for a parameter set or the reference, a "
         "guess; 'recorded' for an identification's JSON with --after; 0 for one without)",
     )
@@ -331,9 +332,10 @@ def print_plan(document: dict) -> None:
     at_prior = spread["predicted_precision_at_prior"] if spread["vehicles"] else None
     if at_prior:
         within = describe({n: v / 100.0 for n, v in spread["percent_by_parameter"].items()})
+        along = ", along the errors the recorded runs leave" if spread["correlated"] else ""
         print(
-            f"planned for the prior and {spread['vehicles']} vehicles within {within} of it "
-            "(--spread): each figure is the worst of them"
+            f"planned for the prior and {spread['vehicles']} vehicles within {within} of it"
+            f"{along} (--spread): each figure is the worst of them"
         )
     print(
         f"{'':>6} {'target %':>9} {first:>10} {'plan %':>9}"

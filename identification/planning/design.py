@@ -238,9 +238,9 @@ def _block(
     return _Block(weight * jac.T @ jac, weight**2 * jac.T @ sigma @ jac)
 
 
-def _relative_sd(info: PlanInformation, covariance: np.ndarray) -> np.ndarray:
-    """(..., len(PRECISION_NAMES)) relative standard deviations from setup-4 covariances."""
-    values = info.values
+def _precision_gradient(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The :data:`PRECISION_NAMES` values at setup-4 ``values`` and their gradient,
+    (13, 10): the inertias J1, J2, J3 from J_sum, x1, x12, then setup 4's own."""
     j_sum, x1, x12 = (values[THETA_NAMES.index(n)] for n in ("J_sum", "x1", "x12"))
     inertias = np.array([j_sum * x1 * x12, j_sum * (1 - x1) * x12, j_sum * (1 - x12)])
     grads = np.zeros((3, len(THETA_NAMES)))  # d(J1, J2, J3) / d(J_sum, x1, x12)
@@ -249,10 +249,14 @@ def _relative_sd(info: PlanInformation, covariance: np.ndarray) -> np.ndarray:
         [(1 - x1) * x12, -j_sum * x12, j_sum * (1 - x1)],
         [1 - x12, 0.0, -j_sum],
     ]
-    theta_var = np.diagonal(covariance, axis1=-2, axis2=-1)
-    inertia_var = np.einsum("ki,...ij,kj->...k", grads, covariance, grads)
-    sd = np.sqrt(np.maximum(np.concatenate([inertia_var, theta_var], axis=-1), 0.0))
-    return sd / np.concatenate([inertias, values])
+    return np.concatenate([inertias, values]), np.vstack([grads, np.eye(len(THETA_NAMES))])
+
+
+def _relative_sd(info: PlanInformation, covariance: np.ndarray) -> np.ndarray:
+    """(..., len(PRECISION_NAMES)) relative standard deviations from setup-4 covariances."""
+    values, grads = _precision_gradient(info.values)
+    variance = np.einsum("ki,...ij,kj->...k", grads, covariance, grads)
+    return np.sqrt(np.maximum(variance, 0.0)) / values
 
 
 def _sandwich(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -634,6 +638,7 @@ def plan_test(
     spread: float | Mapping[str, float] | str = 0.0,
     vehicles: int = DEFAULT_VEHICLES,
     identification: Mapping[str, Any] | None = None,
+    correlated: bool = True,
 ) -> tuple[PlanInformation, Recommendation]:
     """Measure the candidate amplitudes' information at a prior and recommend a test.
 
@@ -645,12 +650,13 @@ def plan_test(
     speed sensor the user gave (``--vehicle``), which then both the simulated vehicle and the
     model side have. With ``spread`` (relative half-widths, 1, for every drivetrain parameter
     or by name; :data:`~dtid.identification.planning.spread.RECORDED` for the recorded runs'
-    own precision) the information is measured at ``vehicles`` drivetrains around the prior too
-    (:func:`dtid.identification.planning.spread.spread_priors`) and the test must meet every
-    target at each of them. With ``identification`` (the JSON document of the ``recorded``
-    runs' identification, with its profiles) a target is met only where the profile interval
-    confirms it too, and the next test is planned for what the intervals showed the
-    prediction to be off by (:mod:`dtid.identification.planning.confirmation`).
+    own precision, drawn along the directions they leave open, :func:`recorded_correlation`,
+    unless ``correlated`` is false) the information is measured at ``vehicles`` drivetrains
+    around the prior too (:func:`dtid.identification.planning.spread.spread_priors`) and the
+    test must meet every target at each of them. With ``identification`` (the JSON document of
+    the ``recorded`` runs' identification, with its profiles) a target is met only where the
+    profile interval confirms it too, and the next test is planned for what the intervals
+    showed the prediction to be off by (:mod:`dtid.identification.planning.confirmation`).
     """
     options = options or SimulationOptions()
     if vehicle is not None:
@@ -667,22 +673,25 @@ def plan_test(
             amplitudes.append(extra)
     centre, notes = planning_prior(prior)
     info = measure_information(centre, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
+    correlation = None
     if isinstance(spread, str):
         if spread != RECORDED:
             raise ValueError(f"spread {spread!r}: give half-widths or {RECORDED!r}")
         spread = recorded_spread(info, recorded)
+        correlation = recorded_correlation(info, recorded) if correlated else None
     widths = half_widths(spread)
     around = [
         measure_information(
             planning_prior(draw)[0], amplitudes, options=options, seeds=seeds, vehicle=vehicle
         )
-        for draw in spread_priors(prior, widths, vehicles)
+        for draw in spread_priors(prior, widths, vehicles, correlation)
     ]
     info = dataclasses.replace(
         info,
         notes=tuple(notes),
         around=tuple(around),
         spread=widths if around else {},
+        spread_correlated=bool(around) and correlation is not None,
     )
     recommendation = recommend_confirmed(
         info,
@@ -811,6 +820,25 @@ def recorded_spread(info: PlanInformation, recorded: Sequence[Design]) -> dict[s
     return {name: min(SIGMAS * precision[name], MAX_SPREAD) for name in DRIVETRAIN}
 
 
+def recorded_correlation(info: PlanInformation, recorded: Sequence[Design]) -> np.ndarray | None:
+    """The correlation between the :data:`~dtid.identification.planning.spread.DRIVETRAIN`
+    parameters' errors that the recorded runs leave, predicted at the prior (the sandwich
+    covariance of setup 4 carried to J1, J2, J3 by their gradient): the directions in which the
+    vehicles those runs cannot tell from the identified one lie (None without recorded runs)."""
+    if not recorded:
+        return None
+    _, grads = _precision_gradient(info.values)
+    covariance = grads @ _sandwich(*information(info, recorded)) @ grads.T
+    rows = [PRECISION_NAMES.index(name) for name in DRIVETRAIN]
+    covariance = covariance[np.ix_(rows, rows)]
+    sd = np.sqrt(np.maximum(np.diagonal(covariance), 0.0))
+    if np.any(sd <= 0.0):
+        return None
+    correlation = covariance / np.outer(sd, sd)
+    np.fill_diagonal(correlation, 1.0)
+    return (correlation + correlation.T) / 2.0
+
+
 def shortest_test_s(validation_nm: float = 0.0) -> float:
     """The shortest test the search can recommend: one chirp of the shortest duration at each of
     two amplitudes, and the validation chirp (``validation_nm``, N*m; 0 for none), s."""
@@ -910,6 +938,7 @@ def plan_document(
             "percent": round(100.0 * max(info.spread.values(), default=0.0), 3),
             "percent_by_parameter": {n: round(100.0 * w, 3) for n, w in info.spread.items()},
             "vehicles": len(info.around),
+            "correlated": info.spread_correlated,
             "predicted_precision_at_prior": _rounded(recommendation.per_vehicle[0]),
             "vehicles_meeting": {
                 name: sum(SIGMAS * 100.0 * p[name] <= target for p in recommendation.per_vehicle)

@@ -129,6 +129,10 @@ class PlanInformation:
         plan is for the prior alone.
     spread
         Their relative half-width around the prior by drivetrain parameter, 1 (empty: none).
+    spread_correlated
+        Whether they were drawn correlated, along the directions the recorded runs leave open
+        (:func:`dtid.identification.planning.design.recorded_correlation`), not independently
+        per parameter.
     """
 
     prior: DrivetrainParameters
@@ -140,6 +144,7 @@ class PlanInformation:
     notes: tuple[str, ...] = ()
     around: tuple[PlanInformation, ...] = ()
     spread: dict[str, float] = dataclasses.field(default_factory=dict)
+    spread_correlated: bool = False
 
     @property
     def vehicles(self) -> tuple[PlanInformation, ...]:
