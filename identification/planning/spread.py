@@ -83,8 +83,8 @@ def spread_priors(
     count: int = DEFAULT_VEHICLES,
     correlation: np.ndarray | None = None,
 ) -> list[DrivetrainParameters]:
-    """Drivetrains around a prior, each parameter within +-its half-width of its value:
-    uniformly and independently, or correlated as ``correlation`` says.
+    """Drivetrains around a prior, each parameter spread by its half-width about its value:
+    uniformly within it and independently, or correlated as ``correlation`` says.
 
     With a correlation matrix R, each vehicle's relative offsets are the half-widths times
     R^(1/2) u, u a Latin hypercube point in [-1, 1]^d and R^(1/2) R's symmetric square root:
@@ -111,7 +111,7 @@ def spread_priors(
     -------
     list of DrivetrainParameters
         ``count`` drivetrains from a Latin hypercube seeded with :data:`DRAW_SEED`; their loss
-        torque and engine gain are the prior's. None when every half-width is 0.
+        torque and engine gain are the prior's. Empty when every half-width is 0.
 
     Raises
     ------
