@@ -7,7 +7,6 @@ whatever the number of threads.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass, field
 
@@ -439,29 +438,6 @@ def simulate_batch(
     )
 
 
-@functools.lru_cache(maxsize=64)
-def stream_draws(
-    seed: int, stream: int, n_stroke: int, n_speed: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One noise stream's standard normal draws: combustion variation and torque sensor per
-    stroke, speed sensor per speed sample (read-only).
-
-    The stream ``(seed, stream)`` gives the same draws on every call (common random numbers),
-    so they are kept: an identification replays the same few streams thousands of times, and
-    drawing them anew took about a tenth of its time (2026-12-04: 2-3 ms of a call's 30 ms on
-    vehicle_1's recordings). At most 64 streams are kept (about 13 MB for 60 s runs).
-    """
-    rng = np.random.default_rng((seed, stream))
-    draws = (
-        rng.standard_normal(n_stroke),
-        rng.standard_normal(n_stroke),
-        rng.standard_normal(n_speed),
-    )
-    for values in draws:
-        values.flags.writeable = False
-    return draws
-
-
 def replay_batch(
     params: np.ndarray,
     request_t: np.ndarray,
@@ -539,12 +515,12 @@ def replay_batch(
     torque_noise = np.empty((n_jobs, n_stroke_max))
     speed_noise = np.empty((n_jobs, n_speed_max))
     for stream in np.unique(streams):
-        cv, torque, speed = stream_draws(seed, int(stream), n_stroke_max, n_speed_max)
+        rng = np.random.default_rng((seed, int(stream)))
         rows = streams == stream
         sign = signs[rows, None]
-        cv_noise[rows] = sign * cv
-        torque_noise[rows] = sign * torque
-        speed_noise[rows] = sign * speed
+        cv_noise[rows] = sign * rng.standard_normal(n_stroke_max)
+        torque_noise[rows] = sign * rng.standard_normal(n_stroke_max)
+        speed_noise[rows] = sign * rng.standard_normal(n_speed_max)
     n_sub = np.array([substeps(row, options.controller) for row in params], dtype=np.int64)
     out_speed = np.empty((n_jobs, n_speed_max, 5))
     out_torque = np.empty((n_jobs, n_stroke_max, 3))

@@ -22,7 +22,6 @@ from dtid.simulator.simulate import (
     output_capacity,
     simulate,
     simulate_batch,
-    stream_draws,
 )
 
 
@@ -291,17 +290,3 @@ def test_the_plant_starts_in_its_mean_torque_balance_with_a_drag_to_ground(
         )
         result = simulate(reference, plan, options)
         assert abs(np.mean(result.speed_rpm) - weak.setpoint_rpm) < 2.0, d3
-
-
-def test_a_kept_noise_stream_is_the_generators_own_draw() -> None:
-    """The draws kept for a stream are those its generator gives afresh, for each length asked
-    (a shorter run is not handed a longer run's draws), and cannot be changed in place."""
-    for n_stroke, n_speed in ((50, 100), (60, 120), (50, 100)):
-        rng = np.random.default_rng((7, 3))
-        fresh = [rng.standard_normal(n) for n in (n_stroke, n_stroke, n_speed)]
-        kept = stream_draws(7, 3, n_stroke, n_speed)
-        for a, b in zip(kept, fresh, strict=True):
-            assert np.array_equal(a, b)
-            with pytest.raises(ValueError):
-                a[0] = 0.0
-    assert not np.array_equal(stream_draws(7, 4, 50, 100)[0], stream_draws(7, 3, 50, 100)[0])
