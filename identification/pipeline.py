@@ -44,7 +44,7 @@ from dtid.identification.search.identify import (
     runs_at,
     split_runs,
 )
-from dtid.identification.search.objective import nrmse
+from dtid.identification.search.objective import FAILED_NRMSE, nrmse
 from dtid.identification.search.parameterization import (
     PRIOR_SPAN,
     THETA_NAMES,
@@ -311,6 +311,7 @@ class IdentificationReport:
             for i, db in zip(runs, model, strict=True):
                 label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
                 scores[label] = float(nrmse(test.estimates[i].drv_db, db)[0])
+        warn_unrepeatable(scores, selection.tests)
         result = dataclasses.replace(self.identification, validation_nrmse=scores)
         return dataclasses.replace(self, identification=result, validation=selection)
 
@@ -743,7 +744,42 @@ def identify_runs(
     )
     for name, edge in report.at_bounds.items():
         logger.warning("%s", edge_warning(name, edge["side"], edge["lower"], edge["upper"]))
+    warn_unrepeatable(result.fit_nrmse, tests)
     return report
+
+
+def warn_unrepeatable(scores: Mapping[str, float], tests: Sequence[MeasuredTest]) -> None:
+    """Log a warning for each run the identified model could not repeat.
+
+    Parameters
+    ----------
+    scores
+        NRMSE by run label (``"<recording> @ <amplitude> N*m"``), as the identification gives
+        them; :data:`~dtid.identification.search.objective.FAILED_NRMSE` marks a run whose
+        model engine could not idle.
+    tests
+        The recordings the labels name.
+    """
+    by_name = {test.name: test for test in tests}
+    for label, score in scores.items():
+        if score >= FAILED_NRMSE:
+            test = by_name.get(label.rsplit(" @ ", 1)[0])
+            scatter = test.idle_speed_sd_rpm if test is not None else float("nan")
+            logger.warning("%s", unrepeatable_warning(label, scatter))
+
+
+def unrepeatable_warning(label: str, idle_sd_rpm: float) -> str:
+    """What a run the identified model cannot repeat means, for the log (``idle_sd_rpm``: the
+    recording's idle speed scatter outside the chirps, rpm, :attr:`MeasuredTest.
+    idle_speed_sd_rpm`)."""
+    return (
+        f"the identified model could not idle through {label}: at these parameters its engine "
+        "does not keep the idle the recording holds, so they do not describe that run (its "
+        f"NRMSE is the failure's {FAILED_NRMSE:g}). Outside the chirps the recorded idle speed "
+        f"scatters by {idle_sd_rpm:.1f} rpm (SD); an idle loop that hunts (a limit cycle, "
+        "scattering about as much as a chirp moves the speed) is one cause: check the "
+        "vehicle's idle before the test, and read `dtid diagnose` before using these parameters"
+    )
 
 
 def edge_warning(name: str, side: str, lower: float, upper: float) -> str:

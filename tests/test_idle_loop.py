@@ -24,7 +24,9 @@ from dtid.identification.model.idle_loop import (
 )
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
+from dtid.identification.pipeline import warn_unrepeatable
 from dtid.identification.samples.testdata import TestData, from_simulation
+from dtid.identification.search.objective import FAILED_NRMSE
 from dtid.simulator.controller import IdleController
 from dtid.simulator.kernel import SPEED_AVERAGES
 from dtid.simulator.mechanisms import Effects
@@ -190,3 +192,61 @@ def test_without_a_torque_request_the_measured_torque_drives_the_model(
     assert bare.loop.mode == MEASURED_TORQUE
     assert _worst_db(reference, bare) < REPEATED_DB
     assert _worst_db(reference.replace(K=0.5), bare) == _worst_db(reference, bare)
+
+
+LIGHT_FLYWHEEL = DrivetrainParameters(
+    J1=0.0905,
+    J2=0.1168,
+    J3=0.0318,
+    c12=336.3,
+    c23=79.0,
+    d12=1.23,
+    d23=0.391,
+    Tc12=0.396,
+    eps12=0.0203,
+    eps23=0.0165,
+    T_loss=17.3,
+    K=0.986,
+)
+"""A drivetrain whose primary flywheel is lighter than its secondary (J1 < J2): with a PI of too
+much gain and a stroke's delay at 790 rpm its idle hunts."""
+
+
+def _idle_test(controller: IdleController) -> MeasuredTest:
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=30.0)
+    options = SimulationOptions(controller=dataclasses.replace(controller, setpoint_rpm=790.0))
+    data = from_simulation(simulate(LIGHT_FLYWHEEL, plan, options, seed=7))
+    return MeasuredTest.from_data("light flywheel", data, 0.25)
+
+
+def test_an_idle_loop_that_hunts_scatters_the_idle_speed_as_much_as_a_chirp_moves_it() -> None:
+    """The same vehicle and noise under the reference's loop and under a hot PI (Kp 0.48
+    N*m/rpm, a sample's delay, a two-sample latch): a steady idle scatters by a fraction of
+    the 5 N*m chirp's speed movement, the hunting one by more than half of it."""
+    hot = IdleController(
+        kp_nm_per_rpm=0.48,
+        ki_nm_per_rpm_s=0.25,
+        delay_samples=1,
+        latch_samples=2,
+        error_tau_s=0.0135,
+    )
+    for controller, steady in ((IdleController(), True), (hot, False)):
+        test = _idle_test(controller)
+        run = test.estimates[0].run
+        speed = test.data.speed
+        moved = np.std(speed.value[(speed.t > run.start_s) & (speed.t < run.end_s)])
+        assert (test.idle_speed_sd_rpm < 0.3 * moved) == steady, (test.idle_speed_sd_rpm, moved)
+        assert (test.idle_speed_sd_rpm > 0.5 * moved) != steady
+
+
+def test_a_run_the_model_cannot_idle_through_is_named_with_the_idle_scatter(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    test = _idle_test(IdleController())
+    scores = {"light flywheel @ 2 N*m": FAILED_NRMSE, "light flywheel @ 5 N*m": 0.04}
+    with caplog.at_level("WARNING"):
+        warn_unrepeatable(scores, [test])
+    assert len(caplog.records) == 1
+    message = caplog.records[0].getMessage()
+    assert "could not idle through light flywheel @ 2 N*m" in message
+    assert f"scatters by {test.idle_speed_sd_rpm:.1f} rpm" in message

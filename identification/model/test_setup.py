@@ -115,6 +115,17 @@ class MeasuredTest:
             vehicle,
         )
 
+    @property
+    def idle_speed_sd_rpm(self) -> float:
+        """Standard deviation of the recorded speed at idle, rpm: from the recording's first
+        second on, away from every chirp (usable or not). A steady idle scatters by the
+        combustion variation and the sensor's noise; an idle loop that hunts (a limit cycle)
+        by about as much as a chirp moves the speed, or more. NaN with fewer than two samples.
+        """
+        runs = [e.run for e in self.estimates] + [run for run, _ in self.unusable]
+        values = self.data.speed.value[_idle(self.data.speed.t, runs)]
+        return float(np.std(values)) if len(values) > 1 else float("nan")
+
     def model_test(self, indices: Sequence[int], realizations: int | None = None) -> ModelTest:
         """The model's repetition of this recording, estimating the runs given by index
         (:class:`dtid.identification.model.response.ModelTest`)."""
