@@ -35,6 +35,7 @@ from dtid.identification.planning.design import (
     recorded_spread,
     wider_than_targets,
 )
+from dtid.identification.planning.design import information as run_information
 from dtid.identification.planning.information import (
     RESOLUTION_HZ,
     PlanInformation,
@@ -633,3 +634,38 @@ def test_a_prediction_that_is_not_finite_is_never_recommended(
     )
     with pytest.raises(AnalysisError, match="not finite"):
         recommend(dataclasses.replace(information, around=(around,)), DEFAULT_TARGETS_PERCENT, 10.0)
+
+
+@pytest.fixture(scope="module")
+def with_tiny_chirp() -> PlanInformation:
+    """The reference's information at 0.3 N*m, too small a chirp to give an FRF, 5 and 10."""
+    plan = TestPlan(duration_s=30.0)
+    return measure_information(reference_parameters(), (0.3, 5.0, 10.0), reference=plan, seeds=1)
+
+
+def test_an_amplitude_whose_chirp_gives_no_frf_is_left_out_with_the_reason(
+    with_tiny_chirp: PlanInformation,
+) -> None:
+    """At a low idle a vehicle around the prior gave no FRF for the 2 N*m chirp (the measured
+    torque's coherence 0.45), and `dtid plan` refused the whole prior. Such an amplitude is now
+    measured as unusable, carries no information, and the search leaves it out, saying why;
+    the amplitudes that do give an FRF are planned with."""
+    info = with_tiny_chirp
+    tiny, *usable = info.levels
+    assert tiny.unusable and tiny.frequency_hz.size == 0
+    assert all(not level.unusable and level.frequency_hz.size > 20 for level in usable)
+    recommendation = recommend(info, {"J_sum": 5.0}, 10.0, validation_nm=0.0)
+    assert recommendation.excluded[0.3].startswith("its chirp gave no FRF at the prior: ")
+    assert recommendation.design is not None
+    assert recommendation.design.amplitudes_nm == (5.0, 10.0)
+    # a recorded run that such a vehicle would refuse tells nothing about it
+    both = Design((0.3, 5.0), (1, 1), 30.0, 1.0, 15.0, validation_nm=0.0)
+    alone = Design((5.0,), (1,), 30.0, 1.0, 15.0, validation_nm=0.0)
+    assert np.array_equal(run_information(info, [both])[0], run_information(info, [alone])[0])
+
+
+def test_a_validation_chirp_that_gives_no_frf_is_said(with_tiny_chirp: PlanInformation) -> None:
+    """The validation chirp never identifies, but a plan whose validation chirp a vehicle
+    would refuse leaves nothing to validate on: the plan says so."""
+    recommendation = recommend(with_tiny_chirp, {"J_sum": 5.0}, 10.0, validation_nm=0.3)
+    assert "may have nothing to validate on: the chirp run at" in recommendation.excluded[0.3]

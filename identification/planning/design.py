@@ -266,6 +266,8 @@ def _sandwich(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def information(info: PlanInformation, designs: Sequence[Design]) -> tuple[np.ndarray, np.ndarray]:
     """The sandwich's two sums over every run of the designs: sum w J^T J, sum w^2 J^T Sigma J.
+    A run at an amplitude whose chirp gives no FRF on this vehicle
+    (:attr:`~dtid.identification.planning.information.LevelInformation.unusable`) adds nothing.
 
     Raises
     ------
@@ -277,6 +279,8 @@ def information(info: PlanInformation, designs: Sequence[Design]) -> tuple[np.nd
     for design in designs:
         for amplitude, repeats in zip(design.amplitudes_nm, design.repeats, strict=True):
             level = _level(info, amplitude)
+            if level.unusable:  # such a chirp gives no FRF on this vehicle: no information
+                continue
             block = _block(info, level, design.duration_s, (design.f1_hz, design.f2_hz))
             if block is None:
                 raise ConfigError(
@@ -435,7 +439,8 @@ def recommend(
         candidate.
     speed_window_rpm
         The daemon's safety window around the idle speed: an amplitude whose chirp took the
-        speed further at the prior is left out.
+        speed further at the prior (or a vehicle around it) is left out, as is one whose chirp
+        gave no FRF there.
     recorded
         The identifying runs recorded so far, each a design of its own.
     held_out_nm
@@ -450,19 +455,27 @@ def recommend(
     vehicles = info.vehicles
     excluded: dict[float, str] = {}
     allowed = []
+    where = "the prior" if len(vehicles) == 1 else "the prior or a vehicle around it"
     for k, level in enumerate(info.levels):
         a = level.amplitude_nm
         excursion = max(vehicle.levels[k].speed_excursion_rpm for vehicle in vehicles)
+        refused = next((v.levels[k].unusable for v in vehicles if v.levels[k].unusable), "")
         if a > max_amplitude_nm * (1 + 1e-9):
             excluded[a] = f"above the amplitude cap of {max_amplitude_nm:g} N*m"
         elif validation_nm and abs(a - validation_nm) <= AMPLITUDE_MATCH * validation_nm:
-            excluded[a] = "the validation chirp's amplitude (it must not identify)"
+            excluded[a] = "the validation chirp's amplitude (it must not identify)" + (
+                f"; at {where} its chirp gave no FRF, so the test may have nothing to validate "
+                f"on: {refused}"
+                if refused
+                else ""
+            )
         elif validation_nm and a < validation_nm:
             excluded[a] = "below the validation chirp's (the two largest amplitudes identify)"
         elif any(abs(a - h) <= AMPLITUDE_MATCH * h for h in held_out_nm):
             excluded[a] = "the recorded tests' validation amplitude (it must stay held out)"
+        elif refused:
+            excluded[a] = f"its chirp gave no FRF at {where}: {refused}"
         elif excursion > speed_window_rpm:
-            where = "the prior" if len(vehicles) == 1 else "the prior or a vehicle around it"
             excluded[a] = (
                 f"its chirp took the speed {excursion:.0f} rpm from idle at {where}, outside "
                 f"the {speed_window_rpm:g} rpm safety window"
@@ -949,7 +962,10 @@ def plan_document(
         "information": {
             "amplitudes_nm": list(info.amplitudes_nm),
             "seeds": info.seeds,
-            "speed_excursion_rpm": [round(lv.speed_excursion_rpm, 1) for lv in info.levels],
+            "speed_excursion_rpm": [
+                round(lv.speed_excursion_rpm, 1) if math.isfinite(lv.speed_excursion_rpm) else None
+                for lv in info.levels
+            ],
             "excluded": {f"{a:g}": why for a, why in recommendation.excluded.items()},
             "designs_tried": recommendation.designs_tried,
         },

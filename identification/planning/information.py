@@ -81,7 +81,11 @@ class LevelInformation:
     speed_excursion_rpm
         Largest deviation of the engine speed from its idle mean during the chirp, rpm.
     coherence
-        Median coherence of the run over its band.
+        Median coherence of the run over its band (NaN when ``unusable``).
+    unusable
+        Why the chirp gave no FRF on a seed (the identification's refusal), or "" when it gave
+        one on every seed; an unusable level carries no bins and no information, and the
+        search leaves its amplitude out (:func:`dtid.identification.planning.design.recommend`).
     """
 
     amplitude_nm: float
@@ -92,6 +96,7 @@ class LevelInformation:
     correlation: np.ndarray
     speed_excursion_rpm: float
     coherence: float
+    unusable: str = ""
 
     def covariance(self, rows: np.ndarray) -> np.ndarray:
         """Residual covariance of the bins selected by ``rows`` (a boolean mask), dB^2."""
@@ -187,6 +192,15 @@ def measure_information(
     Returns
     -------
     PlanInformation
+        An amplitude whose chirp gave no FRF on some seed (too little coherence at a small
+        amplitude and a low idle, for example) is measured as an unusable level
+        (:attr:`LevelInformation.unusable`), not refused: at a vehicle around a prior it says
+        that this amplitude cannot serve the plan.
+
+    Raises
+    ------
+    AnalysisError
+        If no chirp of the simulated test gave an FRF.
     """
     amplitudes = tuple(sorted(float(a) for a in amplitudes_nm))
     plan = dataclasses.replace(reference or TestPlan(), amplitudes_nm=amplitudes, validation_nm=0.0)
@@ -201,45 +215,72 @@ def measure_information(
     unit = par.unit(values[None])[0]
     span = par.upper - par.lower
     seen: list[list[dict[str, np.ndarray]]] = [[] for _ in amplitudes]  # per run, per seed
+    unusable: dict[int, str] = {}
     excursions, coherences, setpoints = [], [], []
     for seed in range(seeds):
         result = simulate(prior, plan, options, seed=1000 + seed)
-        test = MeasuredTest.from_data(
-            f"seed {seed}", from_simulation(result), RESOLUTION_HZ, vehicle
-        )
-        if len(test.estimates) != len(amplitudes):
-            raise AnalysisError(
-                f"the test simulated at the prior gave {len(test.estimates)} usable runs for "
-                f"{len(amplitudes)} amplitudes; the prior cannot be planned for"
+        try:
+            test = MeasuredTest.from_data(
+                f"seed {seed}", from_simulation(result), RESOLUTION_HZ, vehicle
             )
-        runs = list(range(len(amplitudes)))
+        except AnalysisError as error:
+            raise AnalysisError(
+                f"no chirp of the test simulated at the prior gave an FRF ({error}); "
+                "the prior cannot be planned for"
+            ) from error
+        for run, why in test.unusable:
+            unusable.setdefault(_nearest(amplitudes, run.amplitude_nm), why)
+        index = [_nearest(amplitudes, e.run.amplitude_nm) for e in test.estimates]
+        runs = list(range(len(test.estimates)))
         drv = [e.drv_db for e in test.estimates]
         objective = Objective(par, [test.model_test(runs)], [drv]).replacing(seed=seed)
         spreads = np.concatenate([np.full(len(d), np.linalg.norm(d - d.mean())) for d in drv])
         jac, res = jacobian(objective, unit)
         bounds = np.cumsum([0] + [len(d) for d in drv])
-        for k, estimate in enumerate(test.estimates):
-            rows = slice(bounds[k], bounds[k + 1])
+        for i, (k, estimate) in enumerate(zip(index, test.estimates, strict=True)):
+            rows = slice(bounds[i], bounds[i + 1])
             seen[k].append(
                 {
                     "bin": np.round(estimate.frequency_hz / RESOLUTION_HZ).astype(int),
                     "frequency": estimate.frequency_hz,
                     "jacobian": jac[rows] * spreads[rows, None] / span,  # dB per SI unit
                     "residual": -res[rows] * spreads[rows],  # measured minus model, dB
-                    "drv": drv[k],
+                    "drv": drv[i],
                 }
             )
         idle = test.setpoint_rpm
         setpoints.append(idle)
-        excursions.append(
-            [
-                float(np.max(np.abs(result.speed_rpm[_within(result.speed_t, e.run)] - idle)))
-                for e in test.estimates
-            ]
-        )
-        coherences.append([float(np.median(e.coherence)) for e in test.estimates])
+        excursion = np.full(len(amplitudes), np.nan)
+        coherence = np.full(len(amplitudes), np.nan)
+        for run in [e.run for e in test.estimates] + [run for run, _ in test.unusable]:
+            within = result.speed_rpm[_within(result.speed_t, run)]
+            excursion[_nearest(amplitudes, run.amplitude_nm)] = np.max(np.abs(within - idle))
+        coherence[index] = [np.median(e.coherence) for e in test.estimates]
+        excursions.append(excursion)
+        coherences.append(coherence)
+    for k, per_seed in enumerate(seen):
+        if len(per_seed) < seeds:
+            unusable.setdefault(k, "the simulated test held no chirp run at this amplitude")
     levels = []
     for k, per_seed in enumerate(seen):
+        if k in unusable:
+            measured = np.array(excursions)[:, k]
+            levels.append(
+                LevelInformation(
+                    amplitude_nm=amplitudes[k],
+                    frequency_hz=np.zeros(0),
+                    drv_db=np.zeros(0),
+                    jacobian_db=np.zeros((0, len(THETA_NAMES))),
+                    sigma_db=np.zeros(0),
+                    correlation=np.ones(1),
+                    speed_excursion_rpm=(
+                        float(np.nanmax(measured)) if np.isfinite(measured).any() else np.nan
+                    ),
+                    coherence=np.nan,
+                    unusable=unusable[k],
+                )
+            )
+            continue
         # a seed's idle speed sets its frequency axis and its band's top: keep the common bins
         common = functools.reduce(np.intersect1d, [s["bin"] for s in per_seed])
         picked = [
@@ -292,6 +333,11 @@ def pooled_correlation(residuals: np.ndarray) -> np.ndarray:
             break
         values.append(rho)
     return np.array(values)
+
+
+def _nearest(amplitudes: Sequence[float], amplitude: float) -> int:
+    """Index of the simulated amplitude a run belongs to."""
+    return int(np.argmin(np.abs(np.asarray(amplitudes) - amplitude)))
 
 
 def _within(t: np.ndarray, run: ChirpRun) -> np.ndarray:
