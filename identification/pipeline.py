@@ -309,7 +309,7 @@ class IdentificationReport:
         for test, runs in zip(selection.tests, selection.runs, strict=True):
             model = model_drv_db(params, test.model_test(runs))
             for i, db in zip(runs, model, strict=True):
-                label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
+                label = test.run_label(i)
                 scores[label] = float(nrmse(test.estimates[i].drv_db, db)[0])
         warn_unrepeatable(scores, selection.tests)
         result = dataclasses.replace(self.identification, validation_nrmse=scores)
@@ -358,7 +358,7 @@ class IdentificationReport:
         """:meth:`fit_curves` as JSON: per run its label, role, amplitude, frequencies and the
         measured and identified |G_DRV| (dB), for a report to draw Fig. 6 without the data."""
         labels = [  # as the NRMSEs are labelled, in fit_curves' order
-            f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
+            test.run_label(i)
             for selection in (self.fit, self.validation)
             if selection is not None
             for test, runs in zip(selection.tests, selection.runs, strict=True)

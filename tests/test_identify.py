@@ -182,6 +182,33 @@ def test_linear_stiffness_and_damping_recovered(reference: DrivetrainParameters)
     assert max(result.fit_nrmse.values()) < 0.01
 
 
+def test_repeated_chirps_each_count_in_eq_17_and_have_their_own_label(
+    reference: DrivetrainParameters, softer_dmf: tuple
+) -> None:
+    """A plan's repeats (5, 10, 5, 10 N*m in one recording) are four terms of eq. (17). Their
+    NRMSEs were keyed by recording and amplitude alone, so each repeat overwrote the one before:
+    the report kept two of the four, and the objective reported (and compared when a profile
+    restarted the search) was eq. (17) of those two."""
+    _, single = softer_dmf
+    assert [single.run_label(i) for i in range(3)] == [
+        "clean @ 2 N*m",
+        "clean @ 5 N*m",
+        "clean @ 10 N*m",
+    ]
+    linear = reference.replace(eps12=0.0, eps23=0.0, Tc12=0.0)
+    truth = linear.replace(c12=1.3 * linear.c12, d12=0.7 * linear.d12)
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0, 5.0, 10.0), validation_nm=0.0, duration_s=20.0)
+    data = from_simulation(simulate(truth, plan, SimulationOptions.clean()))
+    measured = MeasuredTest.from_data("repeats", data, 0.25)
+    labels = [measured.run_label(i) for i in range(4)]
+    assert len(set(labels)) == 4
+    assert all(label.startswith("repeats @ ") and " N*m at " in label for label in labels)
+    result = _identify_two(linear, truth, measured, ("c12", "d12"))
+    assert sorted(result.fit_nrmse) == sorted(labels)
+    assert result.objective == pytest.approx(sum(result.fit_nrmse.values()))
+    assert result.theta["c12"] == pytest.approx(truth.c12, rel=1e-3)
+
+
 def test_stiffness_and_play_recovered_with_the_rest_fixed(
     reference: DrivetrainParameters, softer_dmf: tuple
 ) -> None:

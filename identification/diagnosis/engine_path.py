@@ -104,7 +104,7 @@ class EngineRuns:
         self.refit = refit
         self.selection: RunSelection | None = refit.fit if role == "fit" else refit.validation
         mapped: dict[str, list[RunResidual]] = {}
-        for r in found.residuals:  # in the selection's order; repeats share a label
+        for r in found.residuals:  # in the selection's order
             if r.role == role and r.frf == "eng":
                 mapped.setdefault(r.label, []).append(r)
         self.residuals: list[RunResidual] = []
@@ -112,7 +112,7 @@ class EngineRuns:
         if self.selection is not None:
             for test, runs in zip(self.selection.tests, self.selection.runs, strict=True):
                 for i in runs:
-                    label = f"{test.name} @ {test.estimates[i].run.amplitude_nm:g} N*m"
+                    label = test.run_label(i)
                     found_runs = mapped.get(label, [])
                     self.present.append(bool(found_runs))
                     if found_runs:

@@ -123,7 +123,7 @@ def effective_values(
                     hints.append(
                         EffectiveValue(
                             name,
-                            f"{test.name} @ {estimate.run.amplitude_nm:g} N*m",
+                            test.run_label(i),
                             role,
                             estimate.run.amplitude_nm,
                             float(base[INDEX[name]]),

@@ -527,7 +527,7 @@ def model_scatter(
         ]
         for position, i in enumerate(runs):
             estimate = test.estimates[i]
-            label = f"{test.name} @ {estimate.run.amplitude_nm:g} N*m"
+            label = test.run_label(i)
             for frf in FRFS:
                 curve = model[position].drv_db if frf == "drv" else model[position].eng_db
                 if frf == "eng" and not (

@@ -443,7 +443,7 @@ class Refit:
                 continue
             curves = self.curves(row[None], selection)
             labels = [
-                f"{t.name} @ {t.estimates[i].run.amplitude_nm:g} N*m"
+                t.run_label(i)
                 for t, runs in zip(selection.tests, selection.runs, strict=True)
                 for i in runs
             ]

@@ -115,6 +115,16 @@ class MeasuredTest:
             vehicle,
         )
 
+    def run_label(self, index: int) -> str:
+        """How reports name the run ``estimates[index]``: "<recording> @ <amplitude> N*m", and
+        where the recording holds more than one run at that amplitude (a test plan's repeats)
+        its start as well, "... at 125 s", so that no two runs of a recording share a label."""
+        run = self.estimates[index].run
+        amplitude = f"{run.amplitude_nm:g}"
+        label = f"{self.name} @ {amplitude} N*m"
+        repeats = sum(f"{e.run.amplitude_nm:g}" == amplitude for e in self.estimates)
+        return label if repeats == 1 else f"{label} at {run.start_s:.0f} s"
+
     @property
     def idle_speed_sd_rpm(self) -> float:
         """Standard deviation of the recorded speed at idle, rpm: from the recording's first

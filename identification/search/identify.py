@@ -342,10 +342,6 @@ def split_runs(
     return ident, valid
 
 
-def _label(test: MeasuredTest, index: int) -> str:
-    return f"{test.name} @ {test.estimates[index].run.amplitude_nm:g} N*m"
-
-
 def identify(
     tests: Sequence[MeasuredTest],
     parameterization: Parameterization,
@@ -845,5 +841,5 @@ def _nrmse_by_run(
             continue
         model = model_drv_db(params, test.model_test(indices))
         for i, db in zip(indices, model, strict=True):
-            out[_label(test, i)] = float(nrmse(test.estimates[i].drv_db, db)[0])
+            out[test.run_label(i)] = float(nrmse(test.estimates[i].drv_db, db)[0])
     return out
