@@ -60,6 +60,7 @@ from dtid.identification.frf.closed_loop import (
 from dtid.identification.model.idle_loop import SAMPLES_PER_STROKE, IdleLoop
 from dtid.identification.samples.testdata import Series
 from dtid.simulator.controller import IdleController
+from dtid.simulator.kernel import STATUS_BUFFER_FULL
 from dtid.simulator.mechanisms import EXTRA_INDEX, KERNEL_WIDTH, kernel_parameters
 from dtid.simulator.parameters import INDEX
 from dtid.simulator.simulate import BatchResult, SimulationOptions, replay_batch
@@ -69,7 +70,9 @@ SETTLE_S = 3.0
 """Idle before each run in the model's replay, s (the plan's settling time)."""
 DRIVEN_MARGIN_S = 1.0
 """Simulated time past the recording's last crank event a driven replay may need (its speed a
-little lower than the vehicle's), s; the drive's last request holds there."""
+little lower than the vehicle's), s; the drive's last request holds there. Whatever the model
+does there cannot fail a run whose crank events it has already simulated: an idle loop that
+hunts leaves its last request anywhere between its swings, and the engine may stall on it."""
 DEFAULT_REALIZATIONS = 4
 """Runs per parameter set whose cross-spectra are averaged (see the module notes)."""
 
@@ -378,7 +381,9 @@ def _run_curves(
         z = np.asarray(recorded_z, dtype=float)[None]
     else:
         z = np.zeros((n_jobs, length))
-    for job in np.flatnonzero(batch.status == 0):
+    # a run left the speed range after the run's window counts (see DRIVEN_MARGIN_S): the window
+    # is checked below; a full buffer may have cut the torque's samples short
+    for job in np.flatnonzero(batch.status != STATUS_BUFFER_FULL):
         speed = batch.speed[job, : batch.n_speed[job]]
         torque = batch.torque[job, : batch.n_torque[job]]
         if recorded_z is None:
