@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dtid.errors import ConfigError
-from dtid.simulator.parameters import NAMES
+from dtid.simulator.parameters import INDEX, NAMES
 
 
 @dataclass(frozen=True)
@@ -76,12 +76,17 @@ class Mechanism:
         not shape, while |G_DRV|, speed per *measured* torque, hardly sees it) or ``"strokes"``
         (in each stroke's torque by its place in the firing order, which the strokes' own
         torques show directly and the FRFs only by chance).
+    stage_of
+        For a spring's second stage: the names of the coupling's stiffness and free play
+        whose spring it stiffens (``("c12", "eps12")``); None for the others. Beyond its knee
+        such a spring is a stiffer one behind a wider play (:func:`behind_imitation`).
     """
 
     name: str
     physics: str
     parameters: tuple[MechanismParameter, ...]
     path: str = "drivetrain"
+    stage_of: tuple[str, str] | None = None
 
     @property
     def main(self) -> MechanismParameter:
@@ -142,6 +147,7 @@ MECHANISMS: tuple[Mechanism, ...] = (
                 (0.004, 0.012),
             ),
         ),
+        stage_of=("c12", "eps12"),
     ),
     Mechanism(
         "asymmetric_play",
@@ -209,6 +215,7 @@ MECHANISMS: tuple[Mechanism, ...] = (
                 (0.002, 0.006),
             ),
         ),
+        stage_of=("c23", "eps23"),
     ),
     Mechanism(
         "gearbox_drag",
@@ -417,6 +424,49 @@ def parse_effect(text: str) -> dict[str, float]:
         except ValueError:
             raise ConfigError(f"--effect {text!r}: {value!r} is not a number") from None
     return values
+
+
+def behind_imitation(
+    mechanism: Mechanism, row: np.ndarray, second: float, knee: float
+) -> np.ndarray | None:
+    """The spring with a second stage that ``row``'s single-stage spring imitates.
+
+    A spring of stiffness c behind a free play eps (half-width eps/2 each side) with a second
+    stage c_2 from a deflection knee on transmits, beyond the knee, (c + c_2) d - c_2 knee for
+    a deflection d past the play: what a single spring c + c_2 behind a play wider by
+    2 c_2 knee / (c + c_2) transmits. A test whose deflections mostly pass the knee cannot tell
+    the two apart (the blind trial's absorbed two-stage springs: docs/diagnosis.md). This
+    undoes that imitation: the first stage c = c_1 - c_2 and play eps_1 - 2 c_2 knee / c_1
+    behind ``row``'s spring c_1 and play eps_1.
+
+    Parameters
+    ----------
+    mechanism
+        A mechanism with :attr:`Mechanism.stage_of`.
+    row
+        A kernel row (:data:`KERNEL_WIDTH` values, SI units) with the mechanism neutral.
+    second, knee
+        The second stage's stiffness (N*m/rad) and knee (rad).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        The row with the stage present and the first stage's stiffness and play that give
+        ``row`` beyond the knee; None where ``row``'s spring is not stiffer than the stage or
+        its play not wide enough (no such first stage).
+    """
+    if mechanism.stage_of is None:
+        raise ValueError(f"{mechanism.name} is no spring's second stage")
+    stiffness, play = (INDEX[name] for name in mechanism.stage_of)
+    first = row[stiffness] - second
+    narrower = row[play] - 2.0 * second * knee / row[stiffness]
+    if first <= 0.0 or narrower < 0.0:
+        return None
+    out = row.copy()
+    out[stiffness], out[play] = first, narrower
+    out[EXTRA_INDEX[mechanism.parameters[0].name]] = second
+    out[EXTRA_INDEX[mechanism.parameters[1].name]] = knee
+    return out
 
 
 def kernel_parameters(params: np.ndarray, effects: Effects | None = None) -> np.ndarray:

@@ -11,18 +11,20 @@ from dtid.acquisition.plan import TestPlan
 from dtid.cli import main as dtid
 from dtid.errors import ConfigError
 from dtid.simulator.controller import IdleController
-from dtid.simulator.couplings import second_stage_torque
+from dtid.simulator.couplings import backlash_torque, second_stage_torque
 from dtid.simulator.kernel import _torques
 from dtid.simulator.mechanisms import (
+    BY_NAME,
     EXTRA_INDEX,
     KERNEL_WIDTH,
     MECHANISMS,
     NEUTRAL,
     Effects,
+    behind_imitation,
     kernel_parameters,
     parse_effect,
 )
-from dtid.simulator.parameters import NAMES
+from dtid.simulator.parameters import INDEX, NAMES
 from dtid.simulator.simulate import SimulationOptions, simulate
 
 IDLE = TestPlan(amplitudes_nm=(0.01,), validation_nm=0.0, duration_s=4.0, settle_s=4.0)
@@ -145,6 +147,42 @@ def test_progressive_spring_adds_its_stage_beyond_play_and_knee_on_both_sides():
     assert dmf_torque(0.017, **stage) == pytest.approx(300.0 * 0.007)
     with_asym = dmf_torque(0.035, asym12=0.5, **stage)  # the stage counts from the moved stop
     assert with_asym == pytest.approx(300.0 * 0.02 + 600.0 * 0.012)
+
+
+def test_a_second_stage_acts_as_a_stiffer_spring_behind_a_wider_play_beyond_its_knee(reference):
+    """One DMF spring of 900 N*m/rad behind a half-play of 0.01 + 600 * 0.008 / 900 rad is,
+    beyond the knee and on both sides, the two-stage spring ``behind_imitation`` finds behind
+    it for a stage of 600 from a knee of 0.008 rad: c12 300 behind a half-play of 0.01 rad;
+    inside the knee it is not. The clutch's second stage likewise with its backlash on a stop.
+    Behind a spring softer than the stage there is no first stage."""
+    mechanism = BY_NAME["progressive_spring"]
+    half = 0.01 + 600.0 * 0.008 / 900.0
+    single = kernel_parameters(reference.replace(c12=900.0, eps12=2 * half).as_array())
+    two = behind_imitation(mechanism, single, 600.0, 0.008)
+    assert two is not None
+    assert two[INDEX["c12"]] == pytest.approx(300.0)
+    assert two[INDEX["eps12"]] == pytest.approx(0.02)
+    assert (two[EXTRA_INDEX["c12_2"]], two[EXTRA_INDEX["knee12"]]) == (600.0, 0.008)
+    stage = {"c12_2": 600.0, "knee12": 0.008}
+    for delta in (0.025, -0.04):
+        assert dmf_torque(delta, half12=half, c12=900.0) == pytest.approx(
+            dmf_torque(delta, **stage)
+        )
+    assert dmf_torque(0.015, half12=half, c12=900.0) != pytest.approx(dmf_torque(0.015, **stage))
+    assert behind_imitation(mechanism, single, 1000.0, 0.008) is None
+
+    clutch = BY_NAME["clutch_two_stage"]
+    half23 = 0.006 + 200.0 * 0.004 / 280.0
+    single = kernel_parameters(reference.replace(c23=280.0, eps23=2 * half23).as_array())
+    two = behind_imitation(clutch, single, 200.0, 0.004)
+    assert two is not None
+    assert (two[INDEX["c23"]], two[INDEX["eps23"]]) == pytest.approx((80.0, 0.012))
+    for delta in (0.02, -0.03):  # the backlash on its stop, delta's side
+        staged = backlash_torque(
+            delta, 0.0, np.copysign(0.006, delta), 80.0, 0.0, 0.006, 200.0, 0.004
+        )
+        one = backlash_torque(delta, 0.0, np.copysign(half23, delta), 280.0, 0.0, half23)
+        assert one == pytest.approx(staged)
 
 
 def test_quadratic_damping_adds_the_square_of_the_relative_speed_against_it():

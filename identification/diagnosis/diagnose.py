@@ -584,7 +584,10 @@ def diagnose(
         refitted=refitted,
     )
     final = accepted[-1].row if accepted else kernel_parameters(parameters.as_array())
-    absorbed = tuple(refit.absorbed(BY_NAME[m], final) for m in diagnosis.indistinguishable)
+    behind = {x.mechanism: x.behind for x in diagnosis.screened}
+    absorbed = tuple(
+        refit.absorbed(BY_NAME[m], final, behind.get(m)) for m in diagnosis.indistinguishable
+    )
     return dataclasses.replace(diagnosis, absorbed=absorbed, seconds=time.perf_counter() - began)
 
 

@@ -88,6 +88,7 @@ from dtid.simulator.mechanisms import (
     EXTRA_INDEX,
     MECHANISMS,
     Mechanism,
+    behind_imitation,
     kernel_parameters,
 )
 from dtid.simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
@@ -218,6 +219,12 @@ class Screened:
         strokes' own torques, :mod:`dtid.identification.diagnosis.imbalance`).
     threshold
         The |z| its own test needs, where that is not the map's (None: the map's).
+    behind
+        For a spring's second stage: a magnitude of a stage that the screened model's single
+        spring may be imitating beyond its knee with the first stage behind it inside the search
+        box (:func:`dtid.simulator.mechanisms.behind_imitation`), the one nearest the middle of
+        the typical range; None where no typical stage fits behind it. ``visible_z`` is then
+        the smaller of the least visible such stage's and the top of the range's.
     """
 
     mechanism: str
@@ -227,6 +234,7 @@ class Screened:
     ladder: tuple[tuple[float, np.ndarray], ...] = dataclasses.field(repr=False, default=())
     frf: str = "drv"
     threshold: float | None = None
+    behind: float | None = None
 
     def detectable(self, threshold_z: float) -> bool:
         """Whether the data can see it at all (its imitation-free effect passes the map's
@@ -590,7 +598,9 @@ class Refit:
             accepted=again.accepted,
         )
 
-    def absorbed(self, mechanism: Mechanism, row: np.ndarray) -> Absorbed:
+    def absorbed(
+        self, mechanism: Mechanism, row: np.ndarray, behind: float | None = None
+    ) -> Absorbed:
         """What the drivetrain parameters would make of ``mechanism`` if it were present.
 
         The model at ``row`` with the mechanism added at the top of its typical range gives
@@ -600,15 +610,33 @@ class Refit:
         of the bias a present mechanism causes: an identification searches the whole box and
         can end further away (the blind trial's quadratic damping: c12 -58 %, docs/
         diagnosis.md).
+
+        A spring's second stage of magnitude ``behind`` (:attr:`Screened.behind`) is answered
+        exactly instead: ``row``'s single spring is what that stage behind a softer first
+        stage with a narrower play looks like beyond the knee
+        (:func:`dtid.simulator.mechanisms.behind_imitation`), so the drivetrain moves from
+        there to ``row``; eq. (17) of ``row`` on that model's curves says how closely.
         """
-        present = with_mechanism(row, mechanism, mechanism.main.typical[1])
         extra = Extra(self.base, row, ())
+        stage = (
+            None
+            if behind is None
+            else _behind(extra, mechanism, row, with_mechanism(row, mechanism, behind))
+        )
+        if stage is not None:
+            present, imitating = stage, row
+        else:
+            present = with_mechanism(row, mechanism, mechanism.main.typical[1])
         curves = iter(self.curves(present[None]))
         measured = [[next(curves)[0] for _ in runs] for runs in self.fit.runs]
         objective = Objective(extra, self.objective(extra).tests, measured)  # type: ignore[arg-type]
-        unit, value = refine(objective, extra.unit_of(row), ABSORB_SETTINGS)
-        before = dict(zip(THETA_NAMES, theta_of(row), strict=True))
-        after = dict(zip(THETA_NAMES, theta_of(extra.parameters(unit[None])[0]), strict=True))
+        if stage is None:
+            unit, value = refine(objective, extra.unit_of(row), ABSORB_SETTINGS)
+            imitating = extra.parameters(unit[None])[0]
+        else:
+            value = float(objective(extra.unit_of(row)[None])[0])
+        before = dict(zip(THETA_NAMES, theta_of(present), strict=True))
+        after = dict(zip(THETA_NAMES, theta_of(imitating), strict=True))
         prior = theta_from_parameters(self.prior)
         return Absorbed(
             mechanism.name,
@@ -657,11 +685,16 @@ class Refit:
         up = np.clip(unit + np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
         down = np.clip(unit - np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
         rows = [extra.parameters(np.vstack([up, down])), row[None]]
-        trials: list[tuple[str, float]] = []
+        trials: list[tuple[str, float, np.ndarray]] = []  # the drivetrain each trial moves to
         for mechanism in MECHANISMS:
             for value in _magnitudes(mechanism):
-                trials.append((mechanism.name, value))
-                rows.append(with_mechanism(row, mechanism, value)[None])
+                present = with_mechanism(row, mechanism, value)
+                trials.append((mechanism.name, value, unit))
+                rows.append(present[None])
+                behind = _behind(extra, mechanism, row, present)
+                if behind is not None:  # a second stage the identified spring imitates
+                    trials.append((mechanism.name, value, extra.unit_of(behind)))
+                    rows.append(behind[None])
         curves = np.hstack(self.curves(np.vstack(rows)))
         n = len(unit)
         jac = ((curves[:n] - curves[n : 2 * n]) / steps[:, None] / scatter).T
@@ -674,26 +707,39 @@ class Refit:
         projector = np.eye(len(z)) - jac @ inverse[moved]
         z_free = projector @ z
         total = float(z_free @ z_free) or 1.0
-        tried: dict[str, list[tuple[float, float, float, np.ndarray]]] = {}
-        for (name, value), curve in zip(trials, curves[2 * n + 1 :], strict=True):
+        tried: dict[str, list[tuple[float, float, np.ndarray]]] = {}
+        # visibility: at the top of the typical range with the drivetrain's linear imitation,
+        # and, for a second stage, of the least visible one behind the spring it imitates
+        local: dict[str, float] = {}
+        hidden: dict[str, float] = {}
+        behind: dict[str, float] = {}  # the feasible stage nearest the middle of the range
+        for (name, value, moved_to), curve in zip(trials, curves[2 * n + 1 :], strict=True):
             effect = ((curve - base) / scatter)[usable]
             if not (len(effect) and np.isfinite(effect).all()):
                 continue
             left = projector @ (z - effect)  # what the mechanism and the compensation leave
             visible = float(np.max(np.abs(projector @ effect)))
             gain = max(0.0, 1.0 - float(left @ left) / total)
-            compensation = np.clip(unit + inverse @ (z - effect), 0, 1)
-            tried.setdefault(name, []).append((gain, visible, value, compensation))
+            compensation = np.clip(moved_to + inverse @ (z - effect), 0, 1)
+            tried.setdefault(name, []).append((gain, value, compensation))
+            if moved_to is unit:
+                local[name] = max(visible, local.get(name, 0.0))
+            else:
+                hidden[name] = min(visible, hidden.get(name, np.inf))
+                middle = 0.5 * sum(BY_NAME[name].main.typical)
+                if abs(value - middle) < abs(behind.get(name, np.inf) - middle):
+                    behind[name] = value
         out = []
         for name, values in tried.items():
             values.sort(key=lambda entry: -entry[0])  # stable: the first tried among equals
             out.append(
                 Screened(
                     name,
-                    max(entry[1] for entry in values),
+                    min(local.get(name, np.inf), hidden.get(name, np.inf)),
                     values[0][0],
-                    values[0][2],
-                    tuple((value, target) for _, _, value, target in values[:LADDER_STEPS]),
+                    values[0][1],
+                    tuple((value, target) for _, value, target in values[:LADDER_STEPS]),
+                    behind=behind.get(name),
                 )
             )
         return sorted(out, key=lambda s: -s.gain)
@@ -820,6 +866,23 @@ def _magnitudes(mechanism: Mechanism) -> list[float]:
     if main.lower < main.neutral and low > main.neutral:  # signed about neutral
         values += [2 * main.neutral - v for v in values]
     return [float(v) for v in values]
+
+
+def _behind(
+    extra: Extra, mechanism: Mechanism, row: np.ndarray, present: np.ndarray
+) -> np.ndarray | None:
+    """The row with a spring's second stage at ``present``'s values behind the first stage that
+    ``row``'s spring imitates beyond the knee (:func:`dtid.simulator.mechanisms.
+    behind_imitation`), where that first stage lies inside the search box; None otherwise or
+    for a mechanism that is no second stage."""
+    if mechanism.stage_of is None:
+        return None
+    second, knee = (present[EXTRA_INDEX[spec.name]] for spec in mechanism.parameters)
+    behind = behind_imitation(mechanism, row, second, knee)
+    if behind is None:
+        return None
+    unit = extra.unit_of(behind)
+    return behind if bool(np.all((unit >= 0.0) & (unit <= 1.0))) else None
 
 
 def with_mechanism(row: np.ndarray, mechanism: Mechanism, value: float) -> np.ndarray:
