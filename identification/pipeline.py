@@ -776,9 +776,9 @@ def unrepeatable_warning(label: str, idle_sd_rpm: float) -> str:
         f"the identified model could not idle through {label}: at these parameters its engine "
         "does not keep the idle the recording holds, so they do not describe that run (its "
         f"NRMSE is the failure's {FAILED_NRMSE:g}). Outside the chirps the recorded idle speed "
-        f"scatters by {idle_sd_rpm:.1f} rpm (SD); an idle loop that hunts (a limit cycle, "
-        "scattering about as much as a chirp moves the speed) is one cause: check the "
-        "vehicle's idle before the test, and read `dtid diagnose` before using these parameters"
+        f"scatters by {idle_sd_rpm:.1f} rpm (SD; a steady idle by a few rpm, one that hunts "
+        "about as much as a chirp moves the speed): check the vehicle's idle before the test, "
+        "and read `dtid diagnose` before using these parameters"
     )
 
 
