@@ -685,15 +685,17 @@ class Refit:
         up = np.clip(unit + np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
         down = np.clip(unit - np.diag(np.full(len(unit), SCREEN_STEP)), 0, 1)
         rows = [extra.parameters(np.vstack([up, down])), row[None]]
-        trials: list[tuple[str, float, np.ndarray]] = []  # the drivetrain each trial moves to
+        # each trial: mechanism, magnitude, the drivetrain it moves to, whether a second stage
+        # behind the spring it imitates
+        trials: list[tuple[str, float, np.ndarray, bool]] = []
         for mechanism in MECHANISMS:
             for value in _magnitudes(mechanism):
                 present = with_mechanism(row, mechanism, value)
-                trials.append((mechanism.name, value, unit))
+                trials.append((mechanism.name, value, unit, False))
                 rows.append(present[None])
                 behind = _behind(extra, mechanism, row, present)
-                if behind is not None:  # a second stage the identified spring imitates
-                    trials.append((mechanism.name, value, extra.unit_of(behind)))
+                if behind is not None:
+                    trials.append((mechanism.name, value, extra.unit_of(behind), True))
                     rows.append(behind[None])
         curves = np.hstack(self.curves(np.vstack(rows)))
         n = len(unit)
@@ -713,7 +715,7 @@ class Refit:
         local: dict[str, float] = {}
         hidden: dict[str, float] = {}
         behind: dict[str, float] = {}  # the feasible stage nearest the middle of the range
-        for (name, value, moved_to), curve in zip(trials, curves[2 * n + 1 :], strict=True):
+        for (name, value, moved_to, staged), curve in zip(trials, curves[2 * n + 1 :], strict=True):
             effect = ((curve - base) / scatter)[usable]
             if not (len(effect) and np.isfinite(effect).all()):
                 continue
@@ -722,7 +724,7 @@ class Refit:
             gain = max(0.0, 1.0 - float(left @ left) / total)
             compensation = np.clip(moved_to + inverse @ (z - effect), 0, 1)
             tried.setdefault(name, []).append((gain, value, compensation))
-            if moved_to is unit:
+            if not staged:
                 local[name] = max(visible, local.get(name, 0.0))
             else:
                 hidden[name] = min(visible, hidden.get(name, np.inf))
