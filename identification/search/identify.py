@@ -387,43 +387,70 @@ def identify(
     began = time.perf_counter()
     objective = _search_objective(tests, parameterization, identify_runs)
     coordinates = objective.parameterization
-    n_free = len(parameterization.free)
+    units = [_unit_start(coordinates, start) for start in starts]
+    warm = [_unit_start(coordinates, start) for start in warm_starts]
+    best, stages = search(objective, settings, units, warm, progress)
+    return _identification(
+        tests, parameterization, identify_runs, validate_runs, objective, stages, best, began
+    )
+
+
+def search(
+    objective: Objective,
+    settings: SearchSettings,
+    starts: Sequence[np.ndarray] = (),
+    warm_starts: Sequence[np.ndarray] = (),
+    progress: Progress | None = None,
+) -> tuple[np.ndarray, dict[str, Objective]]:
+    """The four stages (the module notes) on an objective over normalised values in [0, 1].
+
+    Parameters
+    ----------
+    objective
+        Eq. (17) over its parameterization's free values (the identification's, or one with
+        mechanisms added: :meth:`dtid.identification.diagnosis.refit.Refit.reidentify`).
+    settings
+        Search budget and seed.
+    starts
+        Normalised start values: they join the evolution's initial population and are polished
+        in stage 2.
+    warm_starts
+        Normalised values polished in stage 2 only (see :func:`identify`).
+    progress
+        Called after each generation and polish step.
+
+    Returns
+    -------
+    tuple
+        The normalised free values reached and the objectives of each stage (their counters).
+    """
+    n_free = len(objective.parameterization.free)
     stages = {
         "global": objective.replacing(realizations=settings.global_realizations),
         "polish": objective.replacing(realizations=settings.polish_realizations),
     }
     if n_free == 0:
-        best = np.zeros((1, 0))
-    else:
-        population = _global_search(stages["global"], n_free, settings, progress, starts)
-        step = settings.polish_step
-        starts_2 = _apart(population, settings.polish_starts, settings.start_distance)
-        starts_2 += _gear_scan(stages["global"], starts_2[0], settings.scan_starts)
-        starts_2 += [_unit_start(coordinates, start) for start in (*starts, *warm_starts)]
-        polished = [
-            levenberg_marquardt(
-                stages["polish"],
-                *_polish(stages["polish"], member, settings.polish_evaluations, step, progress),
-                settings.polish_steps,
-            )
-            for member in starts_2
-        ]
-        candidates = np.array([member for member, _ in polished])
-        ranked = np.argsort(objective(candidates))  # on the report's realizations
-        best = candidates[ranked[: settings.final_starts]]
-        stages["polish"].count(objective)
-    return _last_stages(
-        tests,
-        parameterization,
-        identify_runs,
-        validate_runs,
-        settings,
-        progress,
-        objective,
-        stages,
-        best,
-        began,
-    )
+        stages["final"] = objective
+        return np.zeros(0), stages
+    population = _global_search(stages["global"], n_free, settings, progress, starts)
+    step = settings.polish_step
+    starts_2 = _apart(population, settings.polish_starts, settings.start_distance)
+    starts_2 += _gear_scan(stages["global"], starts_2[0], settings.scan_starts)
+    starts_2 += [*starts, *warm_starts]
+    polished = [
+        levenberg_marquardt(
+            stages["polish"],
+            *_polish(stages["polish"], member, settings.polish_evaluations, step, progress),
+            settings.polish_steps,
+        )
+        for member in starts_2
+    ]
+    candidates = np.array([member for member, _ in polished])
+    ranked = np.argsort(objective(candidates))  # on the report's realizations
+    stages["polish"].count(objective)
+    return _final_ends(
+        objective, stages, candidates[ranked[: settings.final_starts]], settings, progress
+    ), stages
 
 
 def identify_from(
@@ -450,18 +477,11 @@ def identify_from(
     settings = settings or SearchSettings()
     began = time.perf_counter()
     objective = _search_objective(tests, parameterization, identify_runs)
-    best = _unit_start(objective.parameterization, start)[None]
-    return _last_stages(
-        tests,
-        parameterization,
-        identify_runs,
-        validate_runs,
-        settings,
-        progress,
-        objective,
-        {},
-        best,
-        began,
+    stages: dict[str, Objective] = {}
+    start_unit = _unit_start(objective.parameterization, start)[None]
+    best = _final_ends(objective, stages, start_unit, settings, progress)
+    return _identification(
+        tests, parameterization, identify_runs, validate_runs, objective, stages, best, began
     )
 
 
@@ -480,33 +500,42 @@ def _search_objective(
     )
 
 
-def _last_stages(
+def _final_ends(
+    objective: Objective,
+    stages: dict[str, Objective],
+    starts: np.ndarray,
+    settings: SearchSettings,
+    progress: Progress | None,
+) -> np.ndarray:
+    """Stages 3 (final polish) and 4 (Levenberg-Marquardt) from each row of ``starts``
+    (normalised); the end that fits best on fresh draws. Adds the stages' objectives to
+    ``stages``."""
+    if not starts.shape[1]:
+        return starts[0]
+    stages["final"] = objective.replacing(realizations=settings.final_realizations)
+    stages["newton"] = objective.replacing(realizations=settings.final_realizations)
+    ends = np.array(
+        [
+            _finish(stages["final"], stages["newton"], start, settings, progress)[0]
+            for start in starts
+        ]
+    )
+    return ends[_lowest_on_fresh_draws(stages["newton"], ends)]
+
+
+def _identification(
     tests: Sequence[MeasuredTest],
     parameterization: Parameterization,
     identify_runs: Sequence[Sequence[int]],
     validate_runs: Sequence[Sequence[int]],
-    settings: SearchSettings,
-    progress: Progress | None,
     objective: Objective,
     stages: dict[str, Objective],
-    starts: np.ndarray,
+    best: np.ndarray,
     began: float,
 ) -> Identification:
-    """Stages 3 (final polish) and 4 (Levenberg-Marquardt) from each row of ``starts`` (the
-    search's coordinates), and the identification of the end that fits best on fresh draws."""
+    """The identification at ``best`` (the search's normalised values), its figures and the
+    stages' counts."""
     coordinates = objective.parameterization
-    if starts.shape[1]:
-        stages["final"] = objective.replacing(realizations=settings.final_realizations)
-        stages["newton"] = objective.replacing(realizations=settings.final_realizations)
-        ends = np.array(
-            [
-                _finish(stages["final"], stages["newton"], start, settings, progress)[0]
-                for start in starts
-            ]
-        )
-        best = ends[_lowest_on_fresh_draws(stages["newton"], ends)]
-    else:
-        best = starts[0]
     stages.setdefault("final", objective)
     params = coordinates.parameters(best[None])
     fit = _nrmse_by_run(tests, identify_runs, params)
@@ -581,9 +610,10 @@ def _global_search(
     n_free: int,
     settings: SearchSettings,
     progress: Progress | None,
-    starts: Sequence[dict[str, float]],
+    starts: Sequence[np.ndarray],
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Stage 1: differential evolution; the final population and its objectives."""
+    """Stage 1: differential evolution, ``starts`` (normalised) in its initial population; the
+    final population and its objectives."""
     generation = [0]
 
     def after_generation(intermediate_result: optimize.OptimizeResult) -> None:
@@ -595,7 +625,7 @@ def _global_search(
         max(settings.popsize * n_free, MIN_POPULATION)
     )
     for row, start in enumerate(starts):
-        population[row] = _unit_start(objective.parameterization, start)
+        population[row] = start
     result = optimize.differential_evolution(
         lambda u: objective(u.T),
         [(0.0, 1.0)] * n_free,
