@@ -484,6 +484,16 @@ class Refit:
         there: :meth:`starts`, then :meth:`search` from them."""
         return self.search(extra, self.starts(extra, ladder))
 
+    def prior_units(self) -> list[np.ndarray]:
+        """The identification's own start values (the prior's, J_sum from the FRFs' asymptote:
+        :func:`dtid.identification.search.start_values.start_thetas`), the drivetrain's
+        normalised values, clipped into the box."""
+        thetas = start_thetas(self.fit.estimates(), self.prior)
+        return [
+            np.clip(self.base.unit(np.array([[t[n] for n in THETA_NAMES]]))[0], 0.0, 1.0)
+            for t in thetas
+        ]
+
     def starts(
         self,
         extra: Extra,
@@ -500,11 +510,10 @@ class Refit:
         n_base = len(self.base.free)
         held = objective.replacing(realizations=2)
         starts = [extra.unit_of(extra.row)]
-        for theta in start_thetas(self.fit.estimates(), self.prior):
-            at_prior = self.base.unit(np.array([[theta[n] for n in THETA_NAMES]]))[0]
+        for at_prior in self.prior_units():
             for row, _ in ladder[:1] or [(extra.row, None)]:
                 mechanism = np.clip(extra.unit_of(row)[n_base:], 0.0, 1.0)
-                starts.append(np.concatenate([np.clip(at_prior, 0.0, 1.0), mechanism]))
+                starts.append(np.concatenate([at_prior, mechanism]))
         for row, target in ladder:
             unit = extra.unit_of(row)
             if target is not None and len(target):
@@ -561,15 +570,7 @@ class Refit:
         newest = extra.mechanisms[-1]
         middle = with_mechanism(extra.row, newest, 0.5 * sum(newest.main.typical))
         mechanism = np.clip(extra.unit_of(middle)[n_base:], 0.0, 1.0)
-        starts = [
-            np.concatenate(
-                [
-                    np.clip(self.base.unit(np.array([[t[n] for n in THETA_NAMES]]))[0], 0, 1),
-                    mechanism,
-                ]
-            )
-            for t in start_thetas(self.fit.estimates(), self.prior)
-        ]
+        starts = [np.concatenate([at_prior, mechanism]) for at_prior in self.prior_units()]
         settings = SearchSettings(seed=self.settings.seed)
         best, _ = search(objective, settings, starts, [np.clip(extra.unit_of(extra.row), 0, 1)])
         return extra.parameters(best[None])[0]
