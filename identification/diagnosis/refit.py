@@ -70,7 +70,8 @@ from scipy import optimize, stats
 from dtid.identification.diagnosis.mismatch import MismatchMap, sidak
 from dtid.identification.model.response import DEFAULT_REALIZATIONS, model_curves, model_drv_db
 from dtid.identification.pipeline import RunSelection
-from dtid.identification.search.identify import Objective, SearchSettings, refine, search
+from dtid.identification.search.identify import Objective, SearchSettings, refine
+from dtid.identification.search.identify import search as identification_search
 from dtid.identification.search.objective import nrmse
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
@@ -562,7 +563,7 @@ class Refit:
         """Identify again with ``extra``'s mechanisms in the model: the identification's own
         search (:func:`dtid.identification.search.identify.search`, its default budget, this
         refit's seed) over the drivetrain's box and the mechanisms' search bounds, started as
-        the identification was (its prior's start values: :meth:`starts`) with the newest
+        the identification was (its prior's start values: :meth:`prior_units`) with the newest
         mechanism in the middle of its typical range, and from the model it extends (the
         mechanism neutral, polished in stage 2 only). The kernel row reached."""
         objective = self.objective(extra)
@@ -572,7 +573,8 @@ class Refit:
         mechanism = np.clip(extra.unit_of(middle)[n_base:], 0.0, 1.0)
         starts = [np.concatenate([at_prior, mechanism]) for at_prior in self.prior_units()]
         settings = SearchSettings(seed=self.settings.seed)
-        best, _ = search(objective, settings, starts, [np.clip(extra.unit_of(extra.row), 0, 1)])
+        neutral = [np.clip(extra.unit_of(extra.row), 0, 1)]
+        best, _ = identification_search(objective, settings, starts, neutral)
         return extra.parameters(best[None])[0]
 
     def gated_refit(

@@ -430,7 +430,6 @@ def search(
         "polish": objective.replacing(realizations=settings.polish_realizations),
     }
     if n_free == 0:
-        stages["final"] = objective
         return np.zeros(0), stages
     population = _global_search(stages["global"], n_free, settings, progress, starts)
     step = settings.polish_step
