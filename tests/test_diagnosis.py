@@ -691,6 +691,46 @@ def test_an_accessory_mode_the_identification_bent_everything_around_is_found_id
     assert accessory.drivetrain().J1 == pytest.approx(BELTED_TRUTH.J1, rel=0.1)
 
 
+ACCESSORY_TRUTH = DrivetrainParameters(
+    J1=0.158, J2=0.085, J3=0.0270, c12=263.5, c23=87.8, d12=0.617, d23=0.390, Tc12=0.385,
+    eps12=0.0127, eps23=0.0149, T_loss=11.48, K=0.989,
+)  # fmt: skip
+"""The blind trial's case 16 (rounded): a 7 dB accessory mode, 12.9 Hz, above the DMF's."""
+ACCESSORY_BENT = ACCESSORY_TRUTH.replace(
+    J1=0.1872, J2=0.0424, J3=0.0658, c12=450.7, c23=185.8, d12=0.186, d23=0.756, Tc12=2.24,
+    eps12=0.0089, eps23=0.0163,
+)  # fmt: skip
+"""What the identification made of case 16 (eq. 17 0.38): c12 +71 %, c23 +112 %, J2 halved."""
+
+
+@pytest.mark.slow
+def test_an_accessory_its_refit_names_gets_the_drivetrain_identified_again_around_it():
+    """The accessory's refit from the basin the identification bent around it passes its test
+    (before this, it was accepted there: J4 -21 %, J2 -64 %, c12 +194 %, held-out NRMSE -30 %);
+    the accepted candidate is identified again with its mechanism and that model replaces the
+    refit: the accessory within 10 %, the drivetrain's inertias and stiffnesses within 15 %
+    (measured within 7.4 %), the held-out 2 N*m run's NRMSE more than halved (-70 %). 60 s
+    chirps: on 20 or 40 s ones the refit already finds that basin."""
+    effect = Effects({"J4": 0.0218, "c14": 155.0, "d14": 0.18})
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0, 2.0), validation_nm=0.0, duration_s=60.0)
+    result = simulate(ACCESSORY_TRUTH, plan, SimulationOptions(effects=effect), seed=5)
+    tests = [MeasuredTest.from_data("belted", from_simulation(result), 0.25, VehicleData())]
+    chosen = [("fit", identification_runs(tests)), ("validation", validation_runs(tests))]
+    baseline = {"parameters": {}, "nrmse": {}, "objective": 0.0}
+    diagnosis = diagnose(ACCESSORY_BENT, chosen, baseline, mechanisms=["accessory_mode"])
+    assert diagnosis.accepted, diagnosis.sentence()
+    accessory = diagnosis.accepted[0]
+    assert accessory.mechanisms == ("accessory_mode",), diagnosis.sentence()
+    values = accessory.parameters()
+    assert values["J4"] == pytest.approx(0.0218, rel=0.1)
+    assert values["c14"] == pytest.approx(155.0, rel=0.1)
+    drivetrain = accessory.drivetrain()
+    for name in ("J1", "J2", "J3", "c12", "c23"):
+        truth = getattr(ACCESSORY_TRUTH, name)
+        assert getattr(drivetrain, name) == pytest.approx(truth, rel=0.15), name
+    assert accessory.p_value < 1e-6 and accessory.validation_gain > 0.5
+
+
 @pytest.fixture(scope="module")
 def ringed(tmp_path_factory) -> Path:
     """A recording with a DMF friction ring concealed: 4.2 N*m more friction beyond 0.017 rad
