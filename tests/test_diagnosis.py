@@ -704,7 +704,8 @@ ACCESSORY_TRUTH = DrivetrainParameters(
     J1=0.158, J2=0.085, J3=0.0270, c12=263.5, c23=87.8, d12=0.617, d23=0.390, Tc12=0.385,
     eps12=0.0127, eps23=0.0149, T_loss=11.48, K=0.989,
 )  # fmt: skip
-"""The blind trial's case 16 (rounded): a 7 dB accessory mode, 12.9 Hz, above the DMF's."""
+"""The blind trial's case 16 (rounded): a 7 dB accessory mode (13.4 Hz on a fixed
+crank), above the DMF's."""
 ACCESSORY_BENT = ACCESSORY_TRUTH.replace(
     J1=0.1872, J2=0.0424, J3=0.0658, c12=450.7, c23=185.8, d12=0.186, d23=0.756, Tc12=2.24,
     eps12=0.0089, eps23=0.0163,
