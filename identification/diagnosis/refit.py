@@ -1031,34 +1031,33 @@ def _misses_fit(found: MismatchMap) -> bool:
     return any(band.role == "fit" and band.frf == "drv" for band in found.bands)
 
 
-def _to_reidentify(round_: Sequence[Candidate], pool: Sequence[Screened]) -> list[Screened]:
-    """The first round's candidates to identify again: the accepted one with the best
+def _to_reidentify(round_: Sequence[Candidate], pool: Sequence[Screened]) -> list[str]:
+    """The first round's mechanisms to identify again: the accepted candidate's with the best
     criterion (its refit moved the drivetrain only as far as a short search goes from the model
     the identification bent around the mechanism; case 16 of the blind trial kept c12 +126 %),
     else the :data:`REIDENTIFY_COUNT` most visible ones of ``pool`` (the screen's
     ``visible_z``)."""
     accepted = [c for c in round_ if c.accepted]
     if accepted:
-        name = min(accepted, key=lambda c: c.criterion).mechanisms[-1]
-        return [s for s in pool if s.mechanism == name]
-    return sorted(pool, key=lambda s: -s.visible_z)[:REIDENTIFY_COUNT]
+        return [min(accepted, key=lambda c: c.criterion).mechanisms[-1]]
+    return [s.mechanism for s in sorted(pool, key=lambda s: -s.visible_z)[:REIDENTIFY_COUNT]]
 
 
 def _reidentified(
     refit: Refit,
     round_: list[Candidate],
-    chosen: Sequence[Screened],
+    chosen: Sequence[str],
     current: tuple[str, ...],
     current_row: np.ndarray,
 ) -> None:
-    """The ``chosen`` candidates identified again with their mechanism
+    """The ``chosen`` mechanisms' candidates identified again with their mechanism
     (:meth:`Refit.reidentify`), tested as their refits were; each replaces its refit in
     ``round_`` where its criterion is better."""
-    for s in chosen:
-        mechanisms = (*current, s.mechanism)
+    for name in chosen:
+        mechanisms = (*current, name)
         extra = Extra(refit.base, current_row, refit.searched(mechanisms))
         row = refit.reidentify(extra)
-        k = len(BY_NAME[s.mechanism].parameters)
+        k = len(BY_NAME[name].parameters)
         again = refit.test(mechanisms, row, current_row, k, len(round_))
         i = next(i for i, c in enumerate(round_) if c.mechanisms == mechanisms)
         if again.criterion < round_[i].criterion:
