@@ -29,7 +29,7 @@ parameters, so the residuals at the minimum understate the noise by a sixth, and
 an estimated variance follows F(1, nu), not chi-square (1.22 and 1.30 on the two independent
 vehicles). With it and the neighbours' solutions below, the randomised trial's twelve
 recordings whose intervals had missed: 86 of 96 closed intervals hold the truth (83 of 95
-before; docs/accuracy.md). The 95 % confidence interval is where
+before; docs/history/accuracy-measurements.md). The 95 % confidence interval is where
 lambda stays below the chi-square quantile with one degree of freedom (3.84); its ends are read
 off the points by interpolating the root of lambda, which is linear where lambda is quadratic
 (:func:`_crossing`).
@@ -65,7 +65,7 @@ grid and again after the bisection, every point is offered both neighbours' solu
 are and moved along the valley (:func:`smoothed`), and keeps the best on draws neither the
 objective nor the statistic uses (:data:`SMOOTHING_SEEDS`): 4.4 at 73.2, 2.8 at 77.1, the
 interval 71.0-85.9. On the two independent vehicles 16 of 20 intervals then held the truth
-(14 before), for about a fifth more time (docs/accuracy.md).
+(14 before), for about a fifth more time (docs/history/accuracy-measurements.md).
 
 Verdicts: ``practical`` when the interval closes on both sides inside the bounds; ``structural``
 when the profile has a clear minimum but the interval stays open on a side (identifiable in
