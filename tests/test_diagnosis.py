@@ -733,6 +733,27 @@ def test_an_accessory_its_refit_names_gets_the_drivetrain_identified_again_aroun
     assert accessory.p_value < 1e-6 and accessory.validation_gain > 0.5
 
 
+@pytest.mark.slow
+def test_a_refit_the_held_out_run_does_not_follow_is_identified_again():
+    """The blind trial's case 23 (`benchmarks/diagnosis_trial.py`: a random vehicle with its own
+    idle loop, engine and noise; a 2.3 dB friction ring, Tc12_2 1.64 N*m beyond 0.0181 rad),
+    simulated, identified and diagnosed as the trial does. The identification ends with the gear
+    coupling off (c23 -36 %, eps23 +121 %); from there the ring's refit is significant (p 2e-6,
+    Tc12_2 1.50) but the held-out 2 N*m run fits worse (NRMSE 0.078 -> 0.084, where the truth
+    fits at 0.069), so before this version nothing was named (the two most visible candidates,
+    an accessory and a second spring stage, were identified again instead). Identified again
+    with the ring, it is named within 25 % and the held-out run fits better. Where the search
+    ends follows the host's arithmetic (docs/accuracy.md), so this checks the product on one
+    vehicle it did not make, not a rate."""
+    from benchmarks.diagnosis_trial import run_case
+
+    row = run_case(23, clean=0.25)  # the trial's default share of clean cases
+    assert row["concealed"] == "friction_hysteresis"
+    assert row["named"] == "friction_hysteresis", row
+    assert abs(row["main_error"]) < 0.25
+    assert row["validation_after"] < row["validation_before"]
+
+
 @pytest.fixture(scope="module")
 def ringed(tmp_path_factory) -> Path:
     """A recording with a DMF friction ring concealed: 4.2 N*m more friction beyond 0.017 rad
