@@ -1044,8 +1044,8 @@ def _to_reidentify(round_: Sequence[Candidate], pool: Sequence[Screened]) -> lis
     accepted = [c for c in round_ if c.accepted]
     if accepted:
         return [min(accepted, key=lambda c: c.criterion).mechanisms[-1]]
-    significant = sorted((c for c in round_ if c.p_value < ACCEPT_P), key=lambda c: c.criterion)
-    names = [c.mechanisms[-1] for c in significant[:1]]
+    significant = [c for c in round_ if c.p_value < ACCEPT_P]
+    names = [min(significant, key=lambda c: c.criterion).mechanisms[-1]] if significant else []
     for s in sorted(pool, key=lambda s: -s.visible_z):
         if s.mechanism not in names:
             names.append(s.mechanism)
