@@ -95,14 +95,19 @@ def effect_db(truth: DrivetrainParameters, effects: Effects, test: MeasuredTest)
     return max(drv, *(float(np.nanmax(np.abs(s - level))) for s in shape))
 
 
-def run_case(index: int, clean: float) -> dict[str, object]:
-    """Simulate, identify and diagnose one case; its figures."""
+def simulate_case(index: int, clean: float) -> tuple[DrivetrainParameters, Effects, MeasuredTest]:
+    """One case's truth, concealed mechanism and simulated test (the engine data given)."""
     truth, vehicle = draw_truth(index), draw_vehicle(index)
     effects = draw_effect(index, clean)
     options = dataclasses.replace(vehicle, effects=effects)
     data = from_simulation(simulate(truth, PLAN, options, seed=700 + index))
     engine = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
-    test = MeasuredTest.from_data(f"case {index}", data, 0.25, engine)
+    return truth, effects, MeasuredTest.from_data(f"case {index}", data, 0.25, engine)
+
+
+def run_case(index: int, clean: float) -> dict[str, object]:
+    """Simulate, identify and diagnose one case; its figures."""
+    truth, effects, test = simulate_case(index, clean)
     concealed = effects.mechanisms[0] if effects.mechanisms else None
     began = time.perf_counter()
     try:
