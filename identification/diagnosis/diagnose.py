@@ -192,9 +192,14 @@ class Diagnosis:
 
     @property
     def adequate(self) -> bool:
-        """True when the model explains the recordings: no band in the map, and the strokes
-        show no cylinder apart."""
-        return self.mismatch.adequate and not (self.cylinders and self.cylinders.significant)
+        """True when the model explains the recordings: no band in the map, the strokes show no
+        cylinder apart, and no mechanism is accepted (the map's test is omnibus: a mechanism's
+        refit tests one direction of the residual and can find what no band shows)."""
+        return (
+            self.mismatch.adequate
+            and not (self.cylinders and self.cylinders.significant)
+            and not self.accepted
+        )
 
     def sentence(self) -> str:
         """The verdict in one sentence."""
@@ -233,6 +238,12 @@ class Diagnosis:
                 "takes the cylinders as equal where the strokes show one apart (one-cylinder "
                 f"share {cylinders.share:+.3f} +- {cylinders.standard_error:.3f}, "
                 f"p = {cylinders.p_value:.1g})"
+            )
+        if not misses:  # accepted by the check of what the screen would list
+            misses.append(
+                f"misses these recordings where its map locates no band (family-wise "
+                f"{100 * test.family_error:g} %, the largest deviation has p = "
+                f"{test.global_p_value:.2g})"
             )
         text = "The identified model " + " and ".join(misses)
         if self.accepted:
@@ -553,6 +564,20 @@ def diagnose(
                 mismatch_map(alone, selections, draws),
                 refit.run_nrmse(alone),
             )
+    elif drivetrain:  # no band: what the screen would list is checked by its refit
+        listed = [
+            s
+            for s in screened
+            if s.frf == "drv"
+            and s.mechanism in drivetrain
+            and not s.detectable(start.threshold_of(s.frf))
+        ]
+        if listed:
+            _, tried, accepted_drv, _ = diagnose_mechanisms(
+                refit, start, [s.mechanism for s in listed], listed
+            )
+            candidates += tried
+            accepted += accepted_drv
     candidates.sort(key=lambda c: c.criterion)
     after = intervals = None
     if accepted:
