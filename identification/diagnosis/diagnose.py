@@ -574,7 +574,7 @@ def diagnose(
         ]
         if listed:
             _, tried, accepted_drv, _ = diagnose_mechanisms(
-                refit, start, [s.mechanism for s in listed], listed
+                refit, start, [s.mechanism for s in listed], listed, checking=True
             )
             candidates += tried
             accepted += accepted_drv

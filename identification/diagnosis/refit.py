@@ -579,18 +579,26 @@ class Refit:
         best, _ = identification_search(objective, settings, starts, neutral)
         return extra.parameters(best[None])[0]
 
+    def gate(
+        self, extra: Extra, ladder: Sequence[tuple[np.ndarray, np.ndarray | None]], gain: float
+    ) -> tuple[list[np.ndarray], np.ndarray, bool]:
+        """A candidate's starts (:meth:`starts`), their eq. (17) on one realization, and
+        whether they or the screen show it can explain something: the screen's linearised
+        ``gain`` at least :data:`SCREEN_GATE`, or the best start at least :data:`SEARCH_GATE`
+        below the first (the model it extends, the mechanism neutral)."""
+        starts = self.starts(extra, ladder)
+        coarse = self.objective(extra).replacing(realizations=1)(np.array(starts))
+        best = np.nanmin(coarse) if np.isfinite(coarse).any() else np.inf
+        return starts, coarse, bool(gain >= SCREEN_GATE or best <= (1.0 - SEARCH_GATE) * coarse[0])
+
     def gated_refit(
         self, extra: Extra, ladder: Sequence[tuple[np.ndarray, np.ndarray | None]], gain: float
     ) -> np.ndarray:
-        """A candidate's refit, searched in full only where the screen or its polished starts
-        show it can explain something: the screen's linearised ``gain`` at least
-        :data:`SCREEN_GATE`, or the best start's eq. (17) (one realization) at least
-        :data:`SEARCH_GATE` below the first start's (the model it extends, the mechanism
-        neutral). Otherwise the best start is the candidate (its test then finds it
-        insignificant). The kernel row reached."""
-        starts = self.starts(extra, ladder)
-        coarse = self.objective(extra).replacing(realizations=1)(np.array(starts))
-        if gain >= SCREEN_GATE or np.nanmin(coarse) <= (1.0 - SEARCH_GATE) * coarse[0]:
+        """A candidate's refit, searched in full only where its :meth:`gate` opens; otherwise
+        the best start is the candidate (its test then finds it insignificant). The kernel row
+        reached."""
+        starts, coarse, opens = self.gate(extra, ladder, gain)
+        if opens:
             return self.search(extra, starts)[0]
         best = starts[int(np.nanargmin(coarse))] if np.isfinite(coarse).any() else starts[0]
         return extra.parameters(best[None])[0]
@@ -941,11 +949,25 @@ def with_mechanism(row: np.ndarray, mechanism: Mechanism, value: float) -> np.nd
     return out
 
 
+def _ladder(
+    screened: Screened, row: np.ndarray, first: bool
+) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """A candidate's ladder (:meth:`Refit.starts`): ``row`` with its mechanism at the screen's
+    best magnitudes, with the drivetrain the screen's compensation moves to where ``first``
+    (a mechanism on top of an accepted one starts from that model's drivetrain)."""
+    mechanism = BY_NAME[screened.mechanism]
+    return [
+        (with_mechanism(row, mechanism, value), target if first else None)
+        for value, target in screened.ladder
+    ]
+
+
 def diagnose_mechanisms(
     refit: Refit,
     found: MismatchMap,
     allowed: Sequence[str] | None = None,
     screened: Sequence[Screened] | None = None,
+    checking: bool = False,
 ) -> tuple[list[Screened], list[Candidate], list[Candidate], np.ndarray | None]:
     """Screen, refit and test (the module notes).
 
@@ -961,6 +983,10 @@ def diagnose_mechanisms(
         Mechanisms to consider (default: the whole library).
     screened
         The screen, if already made (:meth:`Refit.screen`).
+    checking
+        Check what the screen would list where the map has no band: only the candidates whose
+        :meth:`Refit.gate` opens at the model the refits extend are refitted and tested (none:
+        nothing is refitted, not even the baseline).
 
     Returns
     -------
@@ -977,10 +1003,20 @@ def diagnose_mechanisms(
     names = list(allowed) if allowed else [m.name for m in MECHANISMS]
     screened = [s for s in screened or refit.screen(found) if s.mechanism in names]
     chosen = screened[:REFIT_COUNT]
-    if not chosen:
-        return screened, [], [], None
     held = refit.held
     initial = refit.start_row()
+    if checking:
+        chosen = [
+            s
+            for s in chosen
+            if refit.gate(
+                Extra(refit.base, initial, refit.searched((*held, s.mechanism))),
+                _ladder(s, initial, True),
+                s.gain,
+            )[2]
+        ]
+    if not chosen:
+        return screened, [], [], None
     baseline_row, _ = refit.refit(Extra(refit.base, initial, ()))
     tried: list[Candidate] = []
     accepted: list[Candidate] = []
@@ -992,13 +1028,7 @@ def diagnose_mechanisms(
             mechanism = BY_NAME[s.mechanism]
             mechanisms = refit.searched((*current, s.mechanism))
             extra = Extra(refit.base, current_row, mechanisms)  # from the model before, neutral
-            ladder = [
-                (
-                    with_mechanism(current_row, mechanism, value),
-                    None if len(current) > len(held) else target,
-                )
-                for value, target in s.ladder
-            ]
+            ladder = _ladder(s, current_row, len(current) == len(held))
             row = refit.gated_refit(extra, ladder, s.gain)
             k = len(mechanism.parameters)
             round_.append(refit.test((*current, s.mechanism), row, current_row, k, len(pool)))
