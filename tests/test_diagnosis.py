@@ -524,12 +524,13 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     as indistinguishable: an asymmetric DMF play (no mean torque loads the DMF in neutral, so
     the asymmetry only shifts the play's centre) and a uniform torque-sensor gain (it scales
     |G_DRV| as the inertias do), each with what the drivetrain would make of it. The listing is
-    the screen's, checked by each listed mechanism's refit, none significant."""
+    the screen's, checked by the refit of each listed mechanism whose starts could explain
+    something: none significant."""
     baseline = {"parameters": {}, "nrmse": {"fit": {}, "validation": {}}, "objective": 0.0}
     diagnosis = diagnose(reference, selections, baseline)
     assert diagnosis.adequate and not diagnosis.accepted
     refitted = {c.mechanisms[-1] for c in diagnosis.candidates}
-    assert refitted == set(diagnosis.indistinguishable)
+    assert refitted <= set(diagnosis.indistinguishable)
     assert all(c.p_value >= 0.01 for c in diagnosis.candidates)
     assert {"asymmetric_play", "torque_sensor_gain"} <= set(diagnosis.indistinguishable)
     assert "cannot tell" in diagnosis.sentence() and "torque_sensor_gain" in diagnosis.sentence()
@@ -567,8 +568,9 @@ def concealed(folder: Path, effect: str, duration: float = 20.0) -> Path:
 def test_a_concealed_asymmetric_play_is_listed_as_indistinguishable(tmp_path, reference):
     """The undetectable case, concealed: a DMF play 60 % wider in drive than in coast, in
     neutral, where no mean torque loads the DMF. Diagnosed at the truth's drivetrain the map
-    finds nothing, nothing is named, and the asymmetry, its refit insignificant, is listed among
-    what these data can neither detect nor exclude, with the drivetrain unmoved by it."""
+    finds nothing, nothing is named (a listed mechanism's refit, where one runs, is
+    insignificant), and the asymmetry is listed among what these data can neither detect nor
+    exclude, with the drivetrain unmoved by it."""
     from dtid.workflow import measured_tests
 
     path = concealed(tmp_path, "asymmetric_play:asym12=0.6")
@@ -576,8 +578,7 @@ def test_a_concealed_asymmetric_play_is_listed_as_indistinguishable(tmp_path, re
     diagnosis = diagnose_document(measured_tests([path]), document)
     assert diagnosis.adequate and not diagnosis.accepted
     assert "asymmetric_play" in diagnosis.indistinguishable
-    (play,) = (c for c in diagnosis.candidates if c.mechanisms == ("asymmetric_play",))
-    assert play.p_value >= 0.01
+    assert all(c.p_value >= 0.01 for c in diagnosis.candidates)
     assert "asymmetric_play" in diagnosis.sentence()
     absorbed = {entry.mechanism: entry for entry in diagnosis.absorbed}
     assert max(map(abs, absorbed["asymmetric_play"].shift.values())) < 0.02
