@@ -13,7 +13,8 @@ each with its own noise seed. For each recording the mismatch map of ``dtid diag
   engines have equal cylinders, so a significant spread is a false alarm too.
 
 No identification is run (that is ``--identified N``: the first N recordings are also identified
-with the default search and diagnosed as ``dtid diagnose`` would, about a minute each).
+with the default search and diagnosed as ``dtid diagnose`` would, two or three minutes each;
+their ``adequate`` is the whole diagnosis's verdict, the map's own is ``map_adequate``).
 
     PYTHONPATH=. python benchmarks/diagnosis_calibration.py [--recordings 20] [--identified 0]
 
@@ -104,8 +105,12 @@ def main() -> None:
         if index < args.first + args.identified:
             report = run_identification([test], reference_parameters(), profile_points=0)
             diagnosis = diagnose_report(report)
-            row["identified"] = {
+            row["identified"] = {  # the whole diagnosis's verdict: map, strokes, the checks
                 **verdict(diagnosis.mismatch),
+                "map_adequate": diagnosis.mismatch.adequate,
+                "adequate": diagnosis.adequate,
+                "accepted": list(diagnosis.mechanisms),
+                "diagnose_s": diagnosis.seconds,
                 "objective": report.identification.objective,
                 "objective_at_truth": report.fit_objective(truth),
             }
