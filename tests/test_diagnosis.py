@@ -761,6 +761,27 @@ def test_a_refit_the_held_out_run_does_not_follow_is_identified_again():
     assert row["validation_after"] < row["validation_before"]
 
 
+@pytest.mark.slow
+def test_a_mechanism_the_map_does_not_locate_is_named_by_its_refit():
+    """The blind trial's case 3 (a random vehicle with its own idle loop, engine and noise; a
+    quadratic DMF damping, d12_2 1.51 N*m*s^2/rad^2), simulated, identified and diagnosed as
+    the trial does. The identification bends the DMF around it (c12 -55 %, d12 +141 %) and the
+    map finds no band (global p 0.017), so before this version the verdict was "adequate", the
+    damping listed as indistinguishable. Fitted in the truth's basin it explains the identifying
+    runs at p = 1e-8 (`benchmarks/diagnosis_ceiling.py`): the map's omnibus test misses what
+    the mechanism's directed one sees. The listed mechanisms are now checked by their refits,
+    and this one is named within 25 % with the held-out run closer. Where the search ends
+    follows the host's arithmetic (docs/accuracy.md): one vehicle, not a rate."""
+    from benchmarks.diagnosis_trial import run_case
+
+    row = run_case(3, clean=0.25)  # the trial's default share of clean cases
+    assert row["concealed"] == "quadratic_damping"
+    assert row["bands"] == 0 and row["named"] == "quadratic_damping", row
+    assert not row["adequate"]
+    assert abs(row["main_error"]) < 0.25
+    assert row["validation_after"] < row["validation_before"]
+
+
 @pytest.fixture(scope="module")
 def ringed(tmp_path_factory) -> Path:
     """A recording with a DMF friction ring concealed: 4.2 N*m more friction beyond 0.017 rad

@@ -23,7 +23,12 @@ recordings carry the ECU's request: :mod:`dtid.identification.diagnosis.engine_p
    explains the data *and* whose refit gains nothing is listed as indistinguishable
    (:attr:`dtid.identification.diagnosis.diagnose.Diagnosis.indistinguishable`): a uniform
    torque-sensor gain scales |G_DRV| as the inertias do; a free play's asymmetry is a shift of
-   its centre while no mean torque loads it.
+   its centre while no mean torque loads it. Where the map has no |G_DRV| band, what the screen
+   would list is checked by test (``checking``): each listed mechanism whose :meth:`Refit.gate`
+   opens at the identified model is refitted and tested as below, and one accepted overturns
+   the map's verdict (the map's test is omnibus; a refit tests one direction of the residual:
+   the blind trial's quadratic damping and friction ring, which the map missed at p = 0.017 and
+   0.12, their refits named at p = 5e-9 and 3e-12, docs/diagnosis.md).
 2. **Refit**. The model with the mechanism added is refitted from the identified values moved
    by the screen's compensation, the mechanism at the screen's magnitude, polished there; where
    the screen's gain reaches :data:`SCREEN_GATE` or that polish falls :data:`SEARCH_GATE` below
