@@ -813,6 +813,7 @@ def test_a_concealed_friction_ring_is_named_against_the_damping_it_resembles(rin
     assert ring.p_value < 0.01 and ring.validation_gain > 0.1
 
 
+@pytest.mark.slow
 def test_a_second_stage_hidden_behind_a_stiffer_spring_is_listed_with_what_it_hides(reference):
     """A DMF spring of 250 N*m/rad with a second stage of 500 from a knee of 0.004 rad, the
     deflections of a 2, 5 and 10 N*m test past the knee, against the single spring it imitates
