@@ -534,6 +534,17 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     assert all(c.p_value >= 0.01 for c in diagnosis.candidates)
     assert {"asymmetric_play", "torque_sensor_gain"} <= set(diagnosis.indistinguishable)
     assert "cannot tell" in diagnosis.sentence() and "torque_sensor_gain" in diagnosis.sentence()
+    # a check significant on the identifying runs whose held-out run does not follow (the blind
+    # trial's case 22, a two-stage clutch): adequate, the mechanism neither named nor listed
+    from dtid.identification.diagnosis.refit import Candidate
+
+    row = kernel_parameters(reference.as_array())
+    scores = {"fit": {"r @ 5 N*m": 0.05}, "validation": {"r @ 2 N*m": 0.2}}
+    refused = Candidate.tested(("clutch_two_stage",), row, scores, 24.0, 0.002, 2, -0.13, False)
+    told = dataclasses.replace(diagnosis, candidates=(refused,))
+    assert told.adequate and "clutch_two_stage" not in told.indistinguishable
+    assert "clutch_two_stage fits the identifying runs significantly better" in told.sentence()
+    assert "held-out NRMSE +13 %" in told.sentence()
     visible = {s.mechanism for s in diagnosis.screened if s.detectable(3.0)}
     assert {"progressive_spring", "accessory_mode", "gearbox_drag"} <= visible
     # what each would cost if present: a sensor reading g_T = 1.15 times the torque lowers

@@ -217,6 +217,13 @@ class Diagnosis:
                     f"; these data cannot tell {', '.join(hidden)} from the drivetrain "
                     "parameters, which would absorb any of them present"
                 )
+            refused = [c for c in self.candidates if c.p_value < ACCEPT_P]  # best first
+            if refused:  # a check significant on the identifying runs alone
+                text += (
+                    f"; {refused[0].mechanisms[-1]} fits the identifying runs significantly "
+                    f"better (p = {refused[0].p_value:.1g}), but the held-out run does not "
+                    f"confirm it ({_held_out_change(refused[:1])}), so it is not named"
+                )
             return text + "."
         misses = []
         if test.bands:
