@@ -154,6 +154,18 @@ evolution half near that model, ended there with the accessory's inertia at zero
 generations of 20 members per parameter at J4 and c14 within 3 % and the drivetrain in another
 wrong basin (0.17-0.21); the identification's own search with the accessory added found 0.051,
 every inertia within 3.4 %, c12 -8 %, J4 +2 %, c14 +2 % (43 s)."""
+RUNNER_UP = 0.05
+"""A refit's search refines the runner-up among its starts and its evolution's best too where
+eq. (17) there is within this share of the best's: about the scatter of eq. (17) on the
+search's four realizations (its standard deviation over other draws of them: 4 and 8 % at the
+identified models of the blind trial's cases 27 and 19), so the two are not told apart before
+they are refined. On the
+blind trial's case 27 (a progressive spring) the best (0.0935) refined to 0.0913 with the
+first stage at 110 N*m/rad, the runner-up (0.0946) to 0.0834 at 189 (truth 258) with the
+likelihood ratio 35 where the first had 12.5."""
+DISTINCT = 0.01
+"""Normalised distance (largest coordinate) below which the runner-up is the best itself (an
+evolution that ended on a start)."""
 GLOBAL_NEAR = 0.1
 """Half of its first population lies this far (normalised, standard deviation) around the
 start, the other half spans the box (a Latin hypercube): a mechanism the identification bent
@@ -539,8 +551,9 @@ class Refit:
 
     def search(self, extra: Extra, starts: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
         """A differential evolution seeded with ``starts`` (normalised; see :meth:`starts`),
-        half its other members near the best of them, half across the box; the best on the
-        test's realizations refined. The kernel row reached and eq. (17) there."""
+        half its other members near the best of them, half across the box; the best of the starts
+        and the evolution's end refined, and the runner-up too where it is as good within
+        :data:`RUNNER_UP`. The kernel row reached and eq. (17) there."""
         objective = self.objective(extra)
         n_free = len(starts[0])
         seed = self.settings.seed
@@ -562,8 +575,16 @@ class Refit:
             strategy="currenttobest1bin",
         )
         found = np.array([*starts, result.x])
-        best = found[int(np.argmin(objective(found)))]  # on the test's realizations
-        unit, value = refine(objective, best, self.settings)
+        values = objective(found)  # on the search's realizations
+        values = np.where(np.isfinite(values), values, np.inf)  # a model that could not idle
+        best = int(np.argmin(values))
+        ends = [refine(objective, found[best], self.settings)]
+        apart = np.flatnonzero(np.max(np.abs(found - found[best]), axis=1) > DISTINCT)
+        if len(apart):
+            runner_up = apart[int(np.argmin(values[apart]))]
+            if np.isfinite(values[best]) and values[runner_up] <= (1.0 + RUNNER_UP) * values[best]:
+                ends.append(refine(objective, found[runner_up], self.settings))
+        unit, value = min(ends, key=lambda end: end[1])
         return extra.parameters(unit[None])[0], value
 
     def reidentify(self, extra: Extra) -> np.ndarray:
