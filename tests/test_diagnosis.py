@@ -793,6 +793,28 @@ def test_a_mechanism_the_map_does_not_locate_is_named_by_its_refit():
     assert row["validation_after"] < row["validation_before"]
 
 
+@pytest.mark.slow
+def test_a_second_stage_the_identification_made_one_stiff_spring_is_named():
+    """The blind trial's case 27 (a random vehicle with its own idle loop, engine and noise; a
+    progressive DMF spring, c12_2 348 N*m/rad from a knee at 0.0109 rad), simulated,
+    identified and diagnosed as the trial does. The identification returns one stiff spring
+    behind a wider play (c12 +163 %, eps12 +68 %); the map finds one band. Of the spring's
+    polished starts, the one with the first stage at 110 N*m/rad fitted best by a hair (eq. 17
+    0.0935 against 0.0946) and ended at a likelihood ratio of 12.5 (p 0.15), so before this
+    version nothing was named; the runner-up, refined too, ends at 35 (p 1e-4) with the
+    held-out run closer. Where the search ends follows the host's arithmetic
+    (docs/accuracy.md): one vehicle, not a rate; the second stage's split from the first is
+    what the 5 and 10 N*m runs determine least (its main parameter's error is in the trial's
+    results)."""
+    from benchmarks.diagnosis_trial import run_case
+
+    row = run_case(27, clean=0.25)  # the trial's default share of clean cases
+    assert row["concealed"] == "progressive_spring"
+    assert row["named"] == "progressive_spring", row
+    assert not row["adequate"]
+    assert row["validation_after"] < row["validation_before"]
+
+
 @pytest.fixture(scope="module")
 def ringed(tmp_path_factory) -> Path:
     """A recording with a DMF friction ring concealed: 4.2 N*m more friction beyond 0.017 rad
