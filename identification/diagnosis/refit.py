@@ -34,7 +34,8 @@ recordings carry the ECU's request: :mod:`dtid.identification.diagnosis.engine_p
    the screen's gain reaches :data:`SCREEN_GATE` or that polish falls :data:`SEARCH_GATE` below
    the model it extends, then a short differential
    evolution (half its members near that start, half across the box), then the search's last
-   stages (Nelder-Mead, Levenberg-Marquardt, :func:`dtid.identification.search.identify.refine`).
+   stages (Nelder-Mead, Levenberg-Marquardt, :func:`dtid.identification.search.identify.refine`)
+   from the best point, and from the runner-up where it is as good within :data:`RUNNER_UP`.
    The ten parameters of setup 4 are free in the default search box
    (:func:`dtid.identification.search.parameterization.passenger_car_bounds` around the
    identified values), the mechanism's within its search bounds
