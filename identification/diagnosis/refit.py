@@ -160,10 +160,9 @@ RUNNER_UP = 0.05
 eq. (17) there is within this share of the best's: about the scatter of eq. (17) on the
 search's four realizations (its standard deviation over other draws of them: 4 and 8 % at the
 identified models of the blind trial's cases 27 and 19), so the two are not told apart before
-they are refined. On the
-blind trial's case 27 (a progressive spring) the best (0.0935) refined to 0.0913 with the
-first stage at 110 N*m/rad, the runner-up (0.0946) to 0.0834 at 189 (truth 258) with the
-likelihood ratio 35 where the first had 12.5."""
+they are refined. On the blind trial's case 27 (a progressive spring) the best (0.0935) refined
+to 0.0913 with the first stage at 110 N*m/rad, the runner-up (0.0946) to 0.0834 at 189 (truth
+258) with the likelihood ratio 35 where the first had 12.5 (`benchmarks/refit_runner_up.py`)."""
 DISTINCT = 0.01
 """Normalised distance (largest coordinate) below which the runner-up is the best itself (an
 evolution that ended on a start)."""
