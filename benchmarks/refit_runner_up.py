@@ -45,6 +45,7 @@ def main() -> None:
     row = refit.start_row()
     (screened,) = [s for s in refit.screen(found) if s.mechanism == args.mechanism]
     mechanism = (BY_NAME[args.mechanism],)
+    k = len(mechanism[0].parameters)
     baseline, _ = refit.refit(Extra(refit.base, row, ()))
     default = refit_module.RUNNER_UP
     for _ in range(args.repeats):
@@ -57,7 +58,10 @@ def main() -> None:
                 began = time.perf_counter()
                 reached, value = refit.refit(extra, ladder)
                 seconds = time.perf_counter() - began
-                tested = refit.test((args.mechanism,), reached, baseline, 2, tried=1)
+                statistic = None
+                if label != "without":
+                    tested = refit.test((args.mechanism,), reached, baseline, k, tried=1)
+                    statistic = round(tested.statistic, 1)
                 print(
                     json.dumps(
                         {
@@ -65,7 +69,7 @@ def main() -> None:
                             "refit": label,
                             "runner_up": margin,
                             "eq17": round(value, 5),
-                            "statistic": round(tested.statistic, 1) if label != "without" else None,
+                            "statistic": statistic,
                             "seconds": round(seconds, 1),
                         }
                     ),
