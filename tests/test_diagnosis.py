@@ -545,7 +545,7 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     assert told.adequate and "clutch_two_stage" not in told.indistinguishable
     assert "clutch_two_stage fits the identifying runs significantly better" in told.sentence()
     assert "held-out NRMSE +13 %" in told.sentence()
-    visible = {s.mechanism for s in diagnosis.screened if s.detectable(3.0)}
+    visible = {s.mechanism for s in diagnosis.screened if s.detectable(diagnosis.mismatch)}
     assert {"progressive_spring", "accessory_mode", "gearbox_drag"} <= visible
     # what each would cost if present: a sensor reading g_T = 1.15 times the torque lowers
     # |G_DRV| by that factor, which the drivetrain imitates exactly by scaling: every inertia

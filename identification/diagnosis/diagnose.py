@@ -176,13 +176,10 @@ class Diagnosis:
         if not (self.adequate or self.accepted):
             return ()
         significant = {c.mechanisms[-1] for c in self.candidates if c.p_value < ACCEPT_P}
-        found = self.after or self.mismatch
         return tuple(
             s.mechanism
-            for s in self.screened
-            if not s.detectable(found.threshold_of(s.frf))
-            and s.mechanism not in significant
-            and s.mechanism not in self.mechanisms
+            for s in unseen(self.screened, self.after or self.mismatch)
+            if s.mechanism not in significant and s.mechanism not in self.mechanisms
         )
 
     @property
@@ -324,7 +321,7 @@ class Diagnosis:
                     "mechanism": s.mechanism,
                     "visible_z": s.visible_z,
                     "gain": s.gain,
-                    "detectable": s.detectable(self.mismatch.threshold_of(s.frf)),
+                    "detectable": s.detectable(self.mismatch),
                     "frf": s.frf,
                 }
                 for s in self.screened
@@ -377,6 +374,13 @@ class Diagnosis:
 TREND_SPREAD = 0.05
 """Relative spread of the identifying runs' effective values above which they are read as
 depending on the amplitude."""
+
+
+def unseen(screened: Sequence[Screened], found: MismatchMap) -> list[Screened]:
+    """The screened mechanisms that ``found``'s map cannot see at their typical magnitude
+    (:meth:`Screened.detectable`): what the diagnosis lists as indistinguishable when the model
+    explains the recordings, and checks by their refits where the map has no |G_DRV| band."""
+    return [s for s in screened if not s.detectable(found)]
 
 
 def strongest(hints: Sequence[EffectiveValue]) -> list[EffectiveValue]:
@@ -572,13 +576,8 @@ def diagnose(
                 refit.run_nrmse(alone),
             )
     elif drivetrain:  # no band: what the screen would list is checked by its refit
-        listed = [
-            s
-            for s in screened
-            if s.frf == "drv"
-            and s.mechanism in drivetrain
-            and not s.detectable(start.threshold_of(s.frf))
-        ]
+        hidden = unseen(screened, start)
+        listed = [s for s in hidden if s.frf == "drv" and s.mechanism in drivetrain]
         if listed:
             _, tried, accepted_drv, _ = diagnose_mechanisms(
                 refit, start, [s.mechanism for s in listed], listed, checking=True

@@ -269,10 +269,11 @@ class Screened:
     threshold: float | None = None
     behind: float | None = None
 
-    def detectable(self, threshold_z: float) -> bool:
-        """Whether the data can see it at all (its imitation-free effect passes the map's
-        threshold ``threshold_z``, or its own)."""
-        return self.visible_z >= (threshold_z if self.threshold is None else self.threshold)
+    def detectable(self, found: MismatchMap) -> bool:
+        """Whether the data can see it at all: its imitation-free effect passes the threshold
+        of ``found``'s map on its FRF, or its own."""
+        threshold = found.threshold_of(self.frf) if self.threshold is None else self.threshold
+        return self.visible_z >= threshold
 
 
 @dataclass(frozen=True)
