@@ -17,9 +17,10 @@ with the default search and diagnosed as ``dtid diagnose`` would, two or three m
 their ``adequate`` is the whole diagnosis's verdict, the map's own is ``map_adequate``).
 
     PYTHONPATH=. python benchmarks/diagnosis_calibration.py [--recordings 20] [--identified 0]
+        [--first 1] [--errors NAME=FACTOR ...] [--out FILE]
 
-Prints the counts and writes ``benchmarks/results/diagnosis_calibration.json``. A benchmark, not a
-test: nothing is asserted.
+Prints the counts and writes ``benchmarks/results/diagnosis_calibration.json`` (or ``--out``).
+A benchmark, not a test: nothing is asserted.
 """
 
 from __future__ import annotations
@@ -79,8 +80,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--recordings", type=int, default=20)
     parser.add_argument("--first", type=int, default=1, help="index of the first vehicle")
-    parser.add_argument("--errors", nargs="+", default=list(ERRORS), metavar="NAME=FACTOR")
+    parser.add_argument(
+        "--errors", nargs="*", default=list(ERRORS), metavar="NAME=FACTOR", help="none: no wrong"
+    )
     parser.add_argument("--identified", type=int, default=0, help="recordings also identified")
+    parser.add_argument(
+        "--out", type=Path, default=RESULTS / "diagnosis_calibration.json", help="the JSON written"
+    )
     args = parser.parse_args()
     began = time.perf_counter()
     cases: list[dict[str, object]] = []
@@ -145,8 +151,8 @@ def main() -> None:
         "summary": summary,
         "cases": cases,
     }
-    RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "diagnosis_calibration.json").write_text(json.dumps(document, indent=1) + "\n")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(document, indent=1) + "\n")
 
 
 if __name__ == "__main__":
