@@ -1,0 +1,60 @@
+"""Which K the search holds: eq. (24)'s against the strokes' own, on random vehicles.
+
+The search holds the engine's torque gain K at eq. (24)'s value, the mean of the measured
+|G_ENG| (:func:`dtid.identification.search.identify.engine_gain`); the idle loop also reads K
+stroke by stroke, each stroke's mean torque against the request it latched
+(``idle_loop.engine_gain``). This simulates the recordings of
+:mod:`benchmarks.diagnosis_calibration` (random vehicles with their own idle loops, ECU timing,
+engines and noise; the vehicle's engine data given) and identifies each twice with the default
+search, once with each K held:
+
+    PYTHONPATH=. python benchmarks/engine_gain_choice.py --vehicles 53 34 51
+
+Prints, per vehicle and K, the K, eq. (17) at the optimum and at the truth (with that K), and
+every searched parameter's error against the truth, %. A benchmark, not a test: nothing is
+asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+from benchmarks.diagnosis_calibration import recording
+from dtid.identification.pipeline import run_identification
+from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
+from dtid.simulator.parameters import reference_parameters
+
+
+def main() -> None:
+    """Identify each vehicle with both gains and print a row for each."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--vehicles", type=int, nargs="+", default=[53])
+    args = parser.parse_args()
+    for index in args.vehicles:
+        truth, test = recording(index)
+        true_theta = theta_from_parameters(truth)
+        for label, fixed in (("eq. 24", None), ("strokes", {"K": test.loop.gain})):
+            began = time.perf_counter()
+            report = run_identification(
+                [test], reference_parameters(), profile_points=0, fixed=fixed
+            )
+            found = report.identification
+            row = {
+                "vehicle": index,
+                "K": label,
+                "value": found.parameters.K,
+                "true_K": truth.K,
+                "objective": found.objective,
+                "objective_at_truth": report.fit_objective(truth),
+                "error_percent": {
+                    n: round(100 * (found.theta[n] / true_theta[n] - 1), 1) for n in THETA_NAMES
+                },
+                "seconds": round(time.perf_counter() - began, 1),
+            }
+            print(json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()
