@@ -39,6 +39,7 @@ from dtid.identification.diagnosis.mismatch import MismatchMap, mismatch_map
 from dtid.identification.diagnosis.refit import ACCEPT_P
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import (
+    held_gain,
     identification_runs,
     run_identification,
     validation_runs,
@@ -98,7 +99,8 @@ def main() -> None:
         identifying = dataclasses.replace(
             kept, estimates=tuple(kept.estimates[i] for i in fit.runs[0])
         )
-        base = truth.replace(K=engine_gain([identifying]), T_loss=kept.idle_torque_nm)
+        gain = held_gain(fit.tests, fit.runs, engine_gain([identifying]))[0]
+        base = truth.replace(K=gain, T_loss=kept.idle_torque_nm)
         row: dict[str, object] = {"vehicle": index}
         row["truth"] = verdict(mismatch_map(base, selections))
         strokes = stroke_test(fit, valid)

@@ -1,12 +1,13 @@
 """Which K the search holds: eq. (24)'s against the strokes' own, on random vehicles.
 
-The search holds the engine's torque gain K at eq. (24)'s value, the mean of the measured
-|G_ENG| (:func:`dtid.identification.search.identify.engine_gain`); the idle loop also reads K
-stroke by stroke, each stroke's mean torque against the request it latched
-(``idle_loop.engine_gain``). This simulates the recordings of
-:mod:`benchmarks.diagnosis_calibration` (random vehicles with their own idle loops, ECU timing,
-engines and noise; the vehicle's engine data given) and identifies each twice with the default
-search, once with each K held:
+Eq. (24) reads the engine's torque gain K as the mean of the measured |G_ENG|
+(:func:`dtid.identification.search.identify.engine_gain`); the idle loop also reads K stroke by
+stroke, each stroke's mean torque against the request it latched (``idle_loop.engine_gain``).
+The search holds eq. (24)'s unless the two differ by more than
+:data:`dtid.identification.pipeline.GAIN_DISAGREE` (:func:`dtid.identification.pipeline.
+held_gain`). This simulates the recordings of :mod:`benchmarks.diagnosis_calibration` (random
+vehicles with their own idle loops, ECU timing, engines and noise; the vehicle's engine data
+given) and identifies each twice with the default search, holding each K in turn:
 
     PYTHONPATH=. python benchmarks/engine_gain_choice.py --vehicles 53 34 51
 
@@ -18,11 +19,13 @@ asserted.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
 from benchmarks.diagnosis_calibration import recording
-from dtid.identification.pipeline import run_identification
+from dtid.identification.pipeline import identification_runs, run_identification
+from dtid.identification.search.identify import engine_gain
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.simulator.parameters import reference_parameters
 
@@ -35,10 +38,17 @@ def main() -> None:
     for index in args.vehicles:
         truth, test = recording(index)
         true_theta = theta_from_parameters(truth)
-        for label, fixed in (("eq. 24", None), ("strokes", {"K": test.loop.gain})):
+        fit = identification_runs([test])
+        kept = fit.tests[0]
+        identifying = dataclasses.replace(
+            kept, estimates=tuple(kept.estimates[i] for i in fit.runs[0])
+        )
+        spans = [(e.run.start_s, e.run.end_s) for e in identifying.estimates]
+        gains = {"eq. 24": engine_gain([identifying]), "strokes": kept.loop.engine_gain(spans)[0]}
+        for label, gain in gains.items():
             began = time.perf_counter()
             report = run_identification(
-                [test], reference_parameters(), profile_points=0, fixed=fixed
+                [test], reference_parameters(), profile_points=0, fixed={"K": gain}
             )
             found = report.identification
             row = {

@@ -512,7 +512,8 @@ def stroke_gain(latched: np.ndarray, torque: np.ndarray) -> tuple[float, float]:
     indicated torque differ by a constant (a request that leaves out part of the friction); the
     test chirp and the controller's action vary the request enough for the slope.
 
-    It is reported (``idle_loop.engine_gain``), not held by the search: with it the independent
+    It is reported (``idle_loop.engine_gain``), and held by the search only where eq. (24)'s
+    is far from it (:func:`dtid.identification.pipeline.held_gain`): with it the independent
     recordings' truth fits better (eq. 17 0.066 and 0.078 against 0.070 and 0.080), but the
     searches ended worse on three seeds each (eq. 17 0.050-0.056 and 0.068 against 0.049-0.051
     and 0.064-0.066; 36 against 45 of 66 targets met), for a reason not found yet
