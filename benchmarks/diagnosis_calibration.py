@@ -54,10 +54,12 @@ RESULTS = Path(__file__).resolve().parent / "results"
 ERRORS = ("c12=1.05", "c12=1.1", "c12=1.2", "c23=1.05", "c23=1.1", "c23=1.2")
 
 
-def recording(index: int) -> tuple[object, MeasuredTest]:
-    """Truth and measured test of random vehicle ``index`` (noise seed 500 + index)."""
+def recording(index: int, noise_seed: int | None = None) -> tuple[object, MeasuredTest]:
+    """Truth and measured test of random vehicle ``index`` (noise seed 500 + index unless
+    given: the identification trial's recording of that vehicle has 100 + index)."""
     truth, vehicle = draw_truth(index), draw_vehicle(index)
-    data = from_simulation(simulate(truth, PLAN, vehicle, seed=500 + index))
+    seed = 500 + index if noise_seed is None else noise_seed
+    data = from_simulation(simulate(truth, PLAN, vehicle, seed=seed))
     engine = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
     return truth, MeasuredTest.from_data(f"vehicle {index}", data, 0.25, engine)
 

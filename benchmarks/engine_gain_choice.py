@@ -10,6 +10,10 @@ vehicles with their own idle loops, ECU timing, engines and noise; the vehicle's
 given) and identifies each twice with the default search, holding each K in turn:
 
     PYTHONPATH=. python benchmarks/engine_gain_choice.py --vehicles 53 34 51
+    PYTHONPATH=. python benchmarks/engine_gain_choice.py --trial --vehicles 6 14
+
+(``--trial``: the identification trial's recordings of its truths N,
+:mod:`benchmarks.identification_trial`, instead of the calibration's.)
 
 Prints, per vehicle and K, the K, eq. (17) at the optimum and at the truth (with that K), and
 every searched parameter's error against the truth, %. A benchmark, not a test: nothing is
@@ -34,9 +38,14 @@ def main() -> None:
     """Identify each vehicle with both gains and print a row for each."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vehicles", type=int, nargs="+", default=[53])
+    parser.add_argument(
+        "--trial",
+        action="store_true",
+        help="the identification trial's recordings of these truths (noise seed 100 + N)",
+    )
     args = parser.parse_args()
     for index in args.vehicles:
-        truth, test = recording(index)
+        truth, test = recording(index, 100 + index if args.trial else None)
         true_theta = theta_from_parameters(truth)
         fit = identification_runs([test])
         kept = fit.tests[0]

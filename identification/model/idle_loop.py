@@ -513,11 +513,10 @@ def stroke_gain(latched: np.ndarray, torque: np.ndarray) -> tuple[float, float]:
     test chirp and the controller's action vary the request enough for the slope.
 
     It is reported (``idle_loop.engine_gain``), and held by the search only where eq. (24)'s
-    is far from it (:func:`dtid.identification.pipeline.held_gain`): with it the independent
-    recordings' truth fits better (eq. 17 0.066 and 0.078 against 0.070 and 0.080), but the
-    searches ended worse on three seeds each (eq. 17 0.050-0.056 and 0.068 against 0.049-0.051
-    and 0.064-0.066; 36 against 45 of 66 targets met), for a reason not found yet
-    (docs/accuracy.md).
+    is far from it (:func:`dtid.identification.pipeline.held_gain`): with it the truth fits
+    better (the independent recordings' and 13 of the randomised trial's 20), but the searches
+    do not end better (175 against 178 of the trial's 200 targets, the friction worse;
+    docs/accuracy.md).
 
     Parameters
     ----------
