@@ -426,6 +426,9 @@ class Refit:
         self.start_unit = self.base.unit(
             np.array([[theta_from_parameters(p)[n] for n in THETA_NAMES]])
         )[0]
+        # ladder starts polished (:meth:`starts`), by mechanisms and the start's kernel row:
+        # a check's gate and its refit start from the same rungs
+        self._polished: dict[tuple[tuple[str, ...], bytes], np.ndarray] = {}
 
     def start_row(self) -> np.ndarray:
         """The kernel row of the model the refits extend: :attr:`row`, or the identified
@@ -540,14 +543,19 @@ class Refit:
             if target is not None and len(target):
                 unit[:n_base] = target
             mechanism = np.clip(unit[n_base:], 0.0, 1.0)
-            result = optimize.minimize(
-                lambda b, m=mechanism: float(held(np.concatenate([b, m])[None])[0]),
-                unit[:n_base],
-                method="Nelder-Mead",
-                bounds=[(0.0, 1.0)] * n_base,
-                options={"maxfev": LADDER_EVALUATIONS, "xatol": 1e-4, "fatol": 1e-6},
+            key = (
+                tuple(m.name for m in extra.mechanisms),
+                extra.parameters(np.concatenate([unit[:n_base], mechanism])[None])[0].tobytes(),
             )
-            starts.append(np.concatenate([result.x, mechanism]))
+            if key not in self._polished:
+                self._polished[key] = optimize.minimize(
+                    lambda b, m=mechanism: float(held(np.concatenate([b, m])[None])[0]),
+                    unit[:n_base],
+                    method="Nelder-Mead",
+                    bounds=[(0.0, 1.0)] * n_base,
+                    options={"maxfev": LADDER_EVALUATIONS, "xatol": 1e-4, "fatol": 1e-6},
+                ).x
+            starts.append(np.concatenate([self._polished[key], mechanism]))
         return starts
 
     def search(self, extra: Extra, starts: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
