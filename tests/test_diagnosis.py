@@ -19,9 +19,12 @@ from dtid.identification.diagnosis.diagnose import amplitude_trend, diagnose, di
 from dtid.identification.diagnosis.hints import EffectiveValue
 from dtid.identification.diagnosis.mismatch import (
     EDGE_Z,
+    ROUGH_SCALE,
     TREND_DEGREE,
     TREND_LAGS,
     TREND_WINDOW,
+    MismatchMap,
+    NoiseFigures,
     RunResidual,
     bin_autocorrelation,
     family_p_value,
@@ -29,6 +32,7 @@ from dtid.identification.diagnosis.mismatch import (
     mismatch_map,
     model_scatter,
     neighbour_correlation,
+    scatter_scale,
     smoothed,
     trend_db,
     trend_test,
@@ -335,6 +339,26 @@ def test_the_smoothed_scatter_keeps_the_rise_where_the_chirp_excites_less():
     assert smoothed(variance, excitation) == pytest.approx(variance, rel=1e-12)
     variance[4] = np.nan  # a bin without draws: its neighbours' average stands in for it
     assert smoothed(variance, excitation)[2:7] == pytest.approx(np.full(5, 0.01), rel=1e-12)
+
+
+def test_a_recording_far_rougher_than_the_models_draws_is_said_to_be():
+    """White residuals of unit scatter against draws of 1/300 and of 1: the scale is the ratio
+    of their roughness (the medians of neighbour differences of independent normal bins, so 300
+    and 1 within the medians' sampling error over 4 x 60 bins), and only the first |G_ENG| is
+    named as rougher than the draws (vehicle 34's 1047 before its fix, docs/diagnosis.md)."""
+    rng = np.random.default_rng(3)
+    residuals = [rng.standard_normal(60) for _ in range(4)]
+    scales = [
+        scatter_scale(residuals, [spread * rng.standard_normal((16, 60)) for _ in range(4)])
+        for spread in (1 / 300, 1.0)
+    ]
+    assert scales[0] == pytest.approx(300, rel=0.15)
+    assert scales[1] == pytest.approx(1, abs=0.15)
+    figures = [NoiseFigures(scale, 0.3, 100.0, 60.0, 4.8) for scale in scales]
+    noisy = MismatchMap((), (), figures[1], 200.0, 1.0, engine=figures[0])
+    assert [m.split(" residuals")[0] for m in noisy.noise_warnings()] == ["the recordings' |G_ENG|"]
+    assert MismatchMap((), (), figures[1], 200.0, 1.0, engine=figures[1]).noise_warnings() == []
+    assert scales[0] > ROUGH_SCALE > scales[1]
 
 
 def test_the_model_draws_scatter_as_recordings_do_at_the_top_of_the_sweep(

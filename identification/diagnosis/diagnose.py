@@ -14,6 +14,7 @@ is reported as unexplained, with its bands and hints (docs/diagnosis.md).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -55,6 +56,8 @@ from dtid.identification.pipeline import (
 )
 from dtid.simulator.mechanisms import BY_NAME, MECHANISMS, kernel_parameters
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
+
+logger = logging.getLogger(__name__)
 
 REFIT_REPORTED = 0.05
 """Relative change from which a refitted drivetrain parameter is named in the verdict."""
@@ -528,6 +531,8 @@ def diagnose(
     if unknown:
         raise ConfigError(f"unknown mechanism {unknown[0]!r}; the library: {', '.join(BY_NAME)}")
     found = mismatch_map(parameters, selections, draws)
+    for message in found.noise_warnings():
+        logger.warning("%s", message)
     roles = dict(selections)
     refit = Refit(parameters, roles["fit"], roles.get("validation"))
     allowed = list(BY_NAME) if mechanisms is None else list(mechanisms)

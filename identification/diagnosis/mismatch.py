@@ -72,6 +72,12 @@ SMOOTH_BINS = 5
 """Bins over which each bin's scatter variance is averaged (steadies it, adds freedom)."""
 NO_SCATTER_DB = 1e-6
 """A model whose draws scatter less than this (dB) draws no noise (rounding aside)."""
+ROUGH_SCALE = 10.0
+"""Scatter scale (:func:`scatter_scale`) beyond which the model's draws stand for little of a
+recording's noise, so the map's scatter keeps the draws' shape and not the recording's: the
+independent recordings' scales are 1.6-2.2; vehicle 34's |G_ENG|, whose model drew no torque
+noise before the combustion line's fallback (docs/diagnosis.md), had 1047 and a band where the
+recording was merely noisy."""
 DRAW_SEED = 7_000
 """First seed of the draws (apart from the identification's model seeds)."""
 FRFS = ("drv", "eng")
@@ -225,6 +231,22 @@ class MismatchMap:
     def adequate(self) -> bool:
         """True when nothing is significant: the model explains the recordings."""
         return not self.bands
+
+    def noise_warnings(self) -> list[str]:
+        """What to say of an FRF whose scatter scale passes :data:`ROUGH_SCALE`: the map's
+        bands there may be the recording's own noise."""
+        figures = {"drv": self.drv, "eng": self.engine}
+        return [
+            f"the recordings' |G_{frf.upper()}| residuals are {f.scatter_scale:.0f} times rougher "
+            "over frequency than the model's own draws of them: the noise the model repeats (the "
+            "combustion variation and the torque sensor's noise read at idle, the identification "
+            "JSON's idle_loop) stands for little of this recording's, so the map's scatter keeps "
+            "the draws' shape and may put a band where the recording is merely noisy; where the "
+            "vehicle's indicating system gives the COV of IMEP, identify again with --fix "
+            "combustion_variation=VALUE"
+            for frf, f in figures.items()
+            if f is not None and f.scatter_scale > ROUGH_SCALE
+        ]
 
     def threshold_of(self, frf: str) -> float:
         """|z| a bin of ``frf`` (``drv`` or ``eng``) must pass."""
