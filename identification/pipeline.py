@@ -840,8 +840,8 @@ def held_gain(
     (eq. 17 0.054), holding the strokes' K it had every parameter but the friction within 3 %
     (eq. 17 0.031; ``benchmarks/engine_gain_choice.py``). Eq.
     (24)'s stays held where the two agree: on the randomised trial's truths 1-20 the searches
-    met 178 of 200 targets with it and 175 with the strokes' K, the friction coming out worse
-    (docs/accuracy.md).
+    met 178 of 200 targets with it and 175 with the strokes' K, a difference within the
+    friction's scatter (docs/accuracy.md).
 
     Parameters
     ----------

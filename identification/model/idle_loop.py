@@ -515,8 +515,8 @@ def stroke_gain(latched: np.ndarray, torque: np.ndarray) -> tuple[float, float]:
     It is reported (``idle_loop.engine_gain``), and held by the search only where eq. (24)'s
     is far from it (:func:`dtid.identification.pipeline.held_gain`): with it the truth fits
     better (the independent recordings' and 13 of the randomised trial's 20), but the searches
-    do not end better (175 against 178 of the trial's 200 targets, the friction worse;
-    docs/accuracy.md).
+    do not end better (175 against 178 of the trial's 200 targets, a difference within the
+    friction's scatter; docs/accuracy.md).
 
     Parameters
     ----------
