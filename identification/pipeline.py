@@ -838,10 +838,9 @@ def held_gain(
     band, so |G_ENG| no longer has the nominal hold's shape (``benchmarks/request_aliasing.py``,
     docs/accuracy.md). Holding that K, the search bent c12 -12 %, eps12 -24 % and eps23 +18 %
     (eq. 17 0.054), holding the strokes' K it had every parameter but the friction within 3 %
-    (eq. 17 0.031; ``benchmarks/engine_gain_choice.py``). Eq.
-    (24)'s stays held where the two agree: on the randomised trial's truths 1-20 the searches
-    met 178 of 200 targets with it and 175 with the strokes' K, a difference within the
-    friction's scatter (docs/accuracy.md).
+    (eq. 17 0.031; ``benchmarks/engine_gain_choice.py``). Eq. (24)'s stays held where the two
+    agree: on the randomised trial's truths 1-20 the searches met 178 of 200 targets with it and
+    175 with the strokes' K, a difference within the friction's scatter (docs/accuracy.md).
 
     Parameters
     ----------
@@ -865,12 +864,12 @@ def held_gain(
     if not strokes:
         return gain, None
     own = float(np.mean(strokes))
-    if abs(gain / own - 1) <= GAIN_DISAGREE:
+    off = gain / own - 1
+    if abs(off) <= GAIN_DISAGREE:
         return gain, None
-    off = 100 * (gain / own - 1)
     return own, (
         f"eq. (24)'s K {gain:.3f} and the strokes' own {own:.3f} (each stroke's mean torque "
-        f"against the request it took) differ by {off:+.0f} %, beyond eq. (24)'s bias (it "
+        f"against the request it took) differ by {100 * off:+.0f} %, beyond eq. (24)'s bias (it "
         "averages |G_ENG|, which the vehicle's ECU timing and idle controller shape): the search "
         f"holds the strokes' K; --fix K={gain:.4g} holds eq. (24)'s"
     )
