@@ -870,8 +870,10 @@ def held_gain(
     return own, (
         f"eq. (24)'s K {gain:.3f} and the strokes' own {own:.3f} (each stroke's mean torque "
         f"against the request it took) differ by {100 * off:+.0f} %, beyond eq. (24)'s bias (it "
-        "averages |G_ENG|, which the vehicle's ECU timing and idle controller shape): the search "
-        f"holds the strokes' K; --fix K={gain:.4g} holds eq. (24)'s"
+        "averages |G_ENG|, which the vehicle's ECU timing and idle controller shape; an idle "
+        "controller with a derivative action puts the speed's fast response into the request, "
+        "and the engine's once-per-stroke latch folds it into the band): the search holds the "
+        f"strokes' K; --fix K={gain:.4g} holds eq. (24)'s"
     )
 
 
