@@ -426,7 +426,9 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
             for c in curves
         ]
         figure = fit_figure(
-            measured, [np.asarray(c["model_db"]) for c in curves], [c["role"] for c in curves]
+            measured,
+            [np.asarray(c["model_db"] or np.full(len(c["frequency_hz"]), np.nan)) for c in curves],
+            [c["role"] for c in curves],
         )
         parts.append(
             figure_html(

@@ -361,7 +361,9 @@ class IdentificationReport:
 
     def curves(self) -> list[dict[str, object]]:
         """:meth:`fit_curves` as JSON: per run its label, role, amplitude, frequencies and the
-        measured and identified |G_DRV| (dB), for a report to draw Fig. 6 without the data."""
+        measured and identified |G_DRV| (dB), for a report to draw Fig. 6 without the data; the
+        identified curve is None where the model could not idle through the run (its NRMSE is
+        :data:`FAILED_NRMSE`)."""
         labels = [  # as the NRMSEs are labelled, in fit_curves' order
             test.run_label(i)
             for selection in (self.fit, self.validation)
@@ -377,7 +379,7 @@ class IdentificationReport:
                 "amplitude_nm": estimate.run.amplitude_nm,
                 "frequency_hz": estimate.frequency_hz.tolist(),
                 "measured_db": estimate.drv_db.tolist(),
-                "model_db": np.asarray(db).tolist(),
+                "model_db": np.asarray(db).tolist() if np.isfinite(db).all() else None,
             }
             for label, estimate, db, role in zip(labels, measured, model, roles, strict=True)
         ]

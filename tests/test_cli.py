@@ -325,6 +325,31 @@ def test_identify_says_when_a_parameter_ends_on_its_search_box(
     assert line.endswith("(at the search box's upper end)")
 
 
+def test_a_model_that_cannot_idle_is_written_reported_and_not_diagnosed(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Every parameter held at a drivetrain of a fourteenth of the recording's inertia (an
+    engineer checking a data sheet against the recording): the model's engine leaves the speed
+    range on every run. The identification JSON is still written (the runs' NRMSE 10, their
+    model curves null: a NaN once made the JSON unwritable and the result was lost), the report
+    draws it, and the diagnosis refuses, naming the runs, instead of blaming the noise model."""
+    out = tmp_path / "identify.json"
+    fix = ["J_sum=0.02", "x1=0.5", "x12=0.9", "c12=300", "c23=75", "d12=1", "d23=0.2"]
+    fix += ["Tc12=0.3", "eps12=0.02", "eps23=0.01"]
+    argv = ["identify", str(recording), "--fix", *fix, "--profile-points", "0"]
+    assert main([*argv, "--json", str(out)]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "identification")
+    scores = [v for role in document["nrmse"].values() for v in role.values()]
+    assert scores == [10.0, 10.0]  # 5 and 10 N*m
+    assert [curve["model_db"] for curve in document["curves"]] == [None, None]
+    report = tmp_path / "report.html"
+    assert main(["report", str(recording), "--identification", str(out), "-o", str(report)]) == 0
+    assert "Measured and identified |G_DRV|" in report.read_text()
+    message = _error(capsys, ["diagnose", str(recording), "--identification", str(out)])
+    assert "could not idle through" in message and "@ 5 N*m" in message
+
+
 def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "expected NAME=VALUE" in _error(capsys, ["identify", str(recording), "--fix", "J9=1"])
     assert "is not a number" in _error(capsys, ["identify", str(recording), "--fix", "c12=stiff"])

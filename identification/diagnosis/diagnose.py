@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from dtid.errors import ConfigError
+from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.diagnosis.engine_path import (
     diagnose_engine,
     engine_interval,
@@ -54,6 +54,7 @@ from dtid.identification.pipeline import (
     validation_runs,
     with_variation,
 )
+from dtid.identification.search.objective import FAILED_NRMSE
 from dtid.simulator.mechanisms import BY_NAME, MECHANISMS, kernel_parameters
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 
@@ -530,6 +531,20 @@ def diagnose(
     unknown = [m for m in mechanisms or () if m not in BY_NAME]
     if unknown:
         raise ConfigError(f"unknown mechanism {unknown[0]!r}; the library: {', '.join(BY_NAME)}")
+    failed = [
+        label
+        for scores in baseline.get("nrmse", {}).values()
+        for label, value in scores.items()
+        if value >= FAILED_NRMSE
+    ]
+    if failed:
+        raise AnalysisError(
+            f"the identified model could not idle through {', '.join(failed)} (NRMSE "
+            f"{FAILED_NRMSE:g}): its parameters do not describe "
+            f"{'that run' if len(failed) == 1 else 'those runs'}, so there is no model curve to "
+            "diagnose against; identify again (`dtid identify` names such runs with the "
+            "recording's idle scatter)"
+        )
     found = mismatch_map(parameters, selections, draws)
     for message in found.noise_warnings():
         logger.warning("%s", message)

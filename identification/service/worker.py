@@ -724,7 +724,11 @@ class Worker:
         from dtid.identification.diagnosis.diagnose import diagnose_report
         from dtid.jsonfile import write_json
 
-        diagnosis = diagnose_report(report)
+        try:
+            diagnosis = diagnose_report(report)
+        except DtidError as error:
+            self._progress(session, "error", message=f"the diagnosis: {error}")
+            return []
         session.fit = adequacy_of(diagnosis.mismatch)
         document = diagnosis.as_dict()
         self._publish("diagnosis", {"session": session.id, **document})
