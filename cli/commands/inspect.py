@@ -68,6 +68,7 @@ def report(recording: Recording) -> dict[str, object]:
         "runs": runs,
         "integrity": recording.integrity.as_dict(),
         "metadata": read_metadata(recording.path),
+        "sampling": recording.sampling_problems(),
     }
 
 
@@ -124,6 +125,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {s['bad_frames']} frames of {role} could not be decoded")
     for role in document["missing_roles"]:
         print(f"{role:<16}not in the signal map")
+    for role, problem in document["sampling"].items():
+        effect = (
+            "the model is then driven by the measured torque"
+            if role == "torque_request"
+            else "frf, identify and diagnose refuse the recording"
+        )
+        print(f"  {problem}: {effect}")
     if not document["runs"]:
         print("no chirp runs (the test torque is zero or absent)")
     for run in document["runs"]:

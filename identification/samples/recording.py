@@ -16,6 +16,11 @@ from dtid.dbc.ecu_requests import applied_test_torque
 from dtid.dbc.interface import RoleSeries, VehicleInterface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import AnalysisError
+from dtid.identification.samples.crank_sampling import (
+    SPEED_PER_REVOLUTION,
+    STROKES_PER_REVOLUTION,
+    crank_sampling,
+)
 from dtid.identification.samples.late_frames import retime_late_bursts
 from dtid.identification.samples.testdata import Series, TestData
 
@@ -86,13 +91,46 @@ class Recording:
         if warn:
             self.warn_pauses()
         request = self.roles.get("torque_request")
+        with_request = request is not None and len(request.timestamps) > 1
+        series = {
+            role: self._crank_series(role)
+            for role in CRANK_ROLES
+            if role != "torque_request" or with_request
+        }
+        problems = sampling_problems(series)
+        for role in ("speed", "mean_torque"):
+            if role in problems:
+                raise AnalysisError(
+                    f"{self.path}: {problems[role]}; map the engine speed the ECU computes once "
+                    "per crank event and the indicated mean torque once per stroke "
+                    "(docs/vehicle.md, Signal maps)"
+                )
+        if "torque_request" in problems:
+            if warn:
+                logger.warning(
+                    "%s: %s; the model is driven by the measured mean torque instead, as for a "
+                    "recording without the role (docs/model-assumptions.md)",
+                    self.path,
+                    problems["torque_request"],
+                )
+            del series["torque_request"]
         return TestData(
-            speed=self._crank_series("speed"),
-            mean_torque=self._crank_series("mean_torque"),
+            speed=series["speed"],
+            mean_torque=series["mean_torque"],
             test_torque=self._applied_test_torque(warn),
-            torque_request=self._crank_series("torque_request")
-            if request is not None and len(request.timestamps) > 1
-            else None,
+            torque_request=series.get("torque_request"),
+        )
+
+    def sampling_problems(self) -> dict[str, str]:
+        """What is wrong with the sampling of each crank-synchronous role the recording holds
+        (:func:`sampling_problems`; late bursts not re-timed, which moves a few samples), by
+        role."""
+        return sampling_problems(
+            {
+                role: self._deduplicated(role)
+                for role in CRANK_ROLES
+                if role in self.roles and len(self.roles[role].timestamps) > 1
+            }
         )
 
     def warn_pauses(self, reported: int = 0) -> int:
@@ -141,17 +179,23 @@ class Recording:
             )
         return Series(t, value)
 
-    def _crank_series(self, role: str) -> Series:
-        """A crank-synchronous role's samples: a frame repeating its predecessor's counter (a
-        duplicate) dropped, where the map names the counter, and samples that came late in a
-        burst re-timed (:func:`dtid.identification.samples.late_frames.retime_late_bursts`)."""
+    def _deduplicated(self, role: str) -> Series:
+        """A role's samples, a frame repeating its predecessor's counter (a duplicate) dropped
+        where the map names the counter."""
         decoded = self.roles[role]
         t, value = decoded.timestamps, decoded.values
         counter = decoded.extra.get("counter")
         if counter is not None and len(counter) > 1:
             keep = np.concatenate(([True], np.diff(counter) != 0))
             t, value = t[keep], value[keep]
-        retiming = retime_late_bursts(t)
+        return Series(t, value)
+
+    def _crank_series(self, role: str) -> Series:
+        """A crank-synchronous role's samples: :meth:`_deduplicated`, and samples that came
+        late in a burst re-timed (:func:`dtid.identification.samples.late_frames.
+        retime_late_bursts`)."""
+        kept = self._deduplicated(role)
+        retiming = retime_late_bursts(kept.t)
         if retiming.n_moved:
             logger.warning(
                 "%s: %d '%s' samples arrived late in bursts (up to %.3f s); re-timed to their "
@@ -161,7 +205,31 @@ class Recording:
                 role,
                 retiming.max_shift_s,
             )
-        return Series(retiming.times, value)
+        return Series(retiming.times, kept.value)
+
+
+CRANK_ROLES = {
+    "speed": SPEED_PER_REVOLUTION,
+    "mean_torque": STROKES_PER_REVOLUTION,
+    "torque_request": SPEED_PER_REVOLUTION,
+}
+"""The roles read once per crank event or stroke, and how many samples a revolution each."""
+
+
+def sampling_problems(series: Mapping[str, Series]) -> dict[str, str]:
+    """What is wrong with each crank-synchronous role's sampling
+    (:mod:`dtid.identification.samples.crank_sampling`), by role; a role sampled as
+    :data:`CRANK_ROLES` says, or too short to tell, is not listed. Needs the ``speed``."""
+    speed = series.get("speed")
+    if speed is None:
+        return {}
+    out = {}
+    for role, values in series.items():
+        sampling = crank_sampling(values.t, speed.t, speed.value.astype(float))
+        problem = None if sampling is None else sampling.problem(role, CRANK_ROLES[role])
+        if problem is not None:
+            out[role] = problem
+    return out
 
 
 def _in_time_order(series: RoleSeries, start: float, path: Path) -> RoleSeries:

@@ -1,0 +1,142 @@
+"""Crank-synchronous roles told from time-periodic ones (``samples/crank_sampling.py``).
+
+Analytic cases first: sample times made from a known engine speed, one sample every pi/2 of
+crank angle, against a message sent every 10 or 20 ms. Then a recording as a production ECU
+would broadcast it: the reference vehicle's simulated test with its engine speed re-sent every
+10 ms (the last crank-synchronous value held, no crank counter), which the identification once
+read as crank-synchronous and ended with a model that could not idle through any run.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+from json_schemas import validate
+
+from dtid.acquisition.logfile import write_log
+from dtid.acquisition.plan import TestPlan
+from dtid.cli import main
+from dtid.dbc.interface import VehicleInterface
+from dtid.dbc.loader import load_interface
+from dtid.identification.samples.crank_sampling import (
+    SPEED_PER_REVOLUTION,
+    STROKES_PER_REVOLUTION,
+    crank_sampling,
+)
+from dtid.identification.samples.recording import load_recording
+from dtid.simulator.parameters import DrivetrainParameters
+from dtid.simulator.simulate import simulate
+from dtid.simulator.vehicle_frames import simulation_frames
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _engine(seconds: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+    """A fine time grid, s, and an engine speed on it, rpm: 800 rpm swept +-3 % at 1.5 Hz."""
+    t = np.arange(0.0, seconds, 1e-4)
+    return t, 800.0 * (1.0 + 0.03 * np.sin(2 * np.pi * 1.5 * t))
+
+
+def _every(angle_rad: float, t: np.ndarray, rpm: np.ndarray) -> np.ndarray:
+    """Times at which the crank has turned by each further ``angle_rad``, s."""
+    angle = np.concatenate(([0.0], np.cumsum(np.diff(t) * rpm[:-1] * math.pi / 30.0)))
+    return np.interp(np.arange(angle_rad, angle[-1], angle_rad), angle, t)
+
+
+def test_crank_synchronous_samples_come_four_and_two_times_a_revolution() -> None:
+    t, rpm = _engine()
+    for angle, expected in ((math.pi / 2, SPEED_PER_REVOLUTION), (math.pi, STROKES_PER_REVOLUTION)):
+        sampling = crank_sampling(_every(angle, t, rpm), t, rpm)
+        assert sampling is not None
+        assert sampling.per_revolution == pytest.approx(expected, rel=0.01)
+        assert sampling.slope == pytest.approx(-1.0, abs=0.1)
+        assert sampling.problem("speed", expected) is None
+
+
+def test_a_time_periodic_message_is_told_even_where_its_rate_matches_the_crank() -> None:
+    """100 Hz at 800 rpm is 7.5 samples a revolution; 50 Hz at 750 rpm is exactly four, and
+    only the intervals' indifference to the speed gives it away."""
+    t, rpm = _engine()
+    for period_s, scale, per_revolution in ((0.01, 1.0, 7.5), (0.02, 750 / 800, 4.0)):
+        sampling = crank_sampling(np.arange(0.0, 20.0, period_s), t, scale * rpm)
+        assert sampling is not None
+        assert sampling.per_revolution == pytest.approx(per_revolution, rel=0.01)
+        assert sampling.slope == pytest.approx(0.0, abs=0.05)
+        problem = sampling.problem("speed", SPEED_PER_REVOLUTION)
+        assert problem is not None and "does not follow the engine speed" in problem
+
+
+def test_a_steady_speed_is_judged_by_the_rate_alone() -> None:
+    t = np.arange(0.0, 10.0, 1e-4)
+    steady = np.full_like(t, 800.0)
+    sampling = crank_sampling(_every(math.pi / 2, t, steady), t, steady)
+    assert sampling is not None and sampling.slope is None
+    assert sampling.problem("speed", SPEED_PER_REVOLUTION) is None
+
+
+def _resent(
+    frames: list[can.Message], message: str, interface: VehicleInterface
+) -> list[can.Message]:
+    """``frames`` with ``message`` re-sent every 10 ms, each time its latest value."""
+    frame_id = interface.database.get_message_by_name(message).frame_id
+    own = [f for f in frames if f.arbitration_id == frame_id]
+    times = np.arange(own[0].timestamp, own[-1].timestamp, 0.01)
+    latest = np.searchsorted([f.timestamp for f in own], times, side="right") - 1
+    resent = [
+        can.Message(timestamp=t, arbitration_id=frame_id, data=own[k].data, is_extended_id=False)
+        for t, k in zip(times, latest, strict=True)
+    ]
+    others = [f for f in frames if f.arbitration_id != frame_id]
+    return sorted(others + resent, key=lambda f: f.timestamp)
+
+
+@pytest.fixture(scope="module")
+def periodic(reference: DrivetrainParameters, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The reference vehicle's 20 s test twice: with the speed re-sent every 10 ms
+    (``periodic.blf``) and with the total torque request so (``request.blf``), and a signal map
+    without the crank counters (a periodic message has none)."""
+    folder = tmp_path_factory.mktemp("periodic")
+    interface = load_interface()
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=20.0)
+    frames = simulation_frames(simulate(reference, plan, seed=5), interface)
+    write_log(folder / "periodic.blf", _resent(frames, "EngineSpeed", interface))
+    write_log(folder / "request.blf", _resent(frames, "EngineTorqueRequest", interface))
+    text = (ROOT / "dbc" / "drivetrain_signals.toml").read_text()
+    for counter in ("CrankEventCounter", "RequestCounter"):
+        text = text.replace(f'counter = "{counter}"\n', "")
+    (folder / "signals.toml").write_text(text)
+    return folder
+
+
+def test_a_time_periodic_speed_is_refused_and_inspect_says_why(
+    periodic: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording, signals = periodic / "periodic.blf", periodic / "signals.toml"
+    assert main(["identify", str(recording), "--signals", str(signals)]) == 2
+    error = capsys.readouterr().err
+    assert "the speed role comes 6.0 times a crank revolution" in error
+    assert "does not follow the engine speed" in error
+    out = periodic / "inspect.json"
+    assert main(["inspect", str(recording), "--signals", str(signals), "--json", str(out)]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "inspect")
+    assert set(document["sampling"]) == {"speed"}  # the mean torque still comes per stroke
+    assert "frf, identify and diagnose refuse" in capsys.readouterr().out
+
+
+def test_a_time_periodic_torque_request_is_left_out_with_a_warning(
+    periodic: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A periodic request cannot be latched stroke by stroke: the model is driven by the
+    measured torque instead, as for a recording without the role, and the log says why."""
+    interface = load_interface(signals=periodic / "signals.toml")
+    with caplog.at_level("WARNING"):
+        data = load_recording(periodic / "request.blf", interface).test_data()
+    assert data.torque_request is None
+    assert "the torque_request role comes 6.0 times a crank revolution" in caplog.text
+    assert "driven by the measured mean torque instead" in caplog.text
