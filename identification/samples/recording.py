@@ -123,11 +123,10 @@ class Recording:
 
     def sampling_problems(self) -> dict[str, str]:
         """What is wrong with the sampling of each crank-synchronous role the recording holds
-        (:func:`sampling_problems`; late bursts not re-timed, which moves a few samples), by
-        role."""
+        (:func:`sampling_problems`, on the series :meth:`test_data` reads), by role."""
         return sampling_problems(
             {
-                role: self._deduplicated(role)
+                role: self._crank_series(role, warn=False)
                 for role in CRANK_ROLES
                 if role in self.roles and len(self.roles[role].timestamps) > 1
             }
@@ -179,24 +178,19 @@ class Recording:
             )
         return Series(t, value)
 
-    def _deduplicated(self, role: str) -> Series:
-        """A role's samples, a frame repeating its predecessor's counter (a duplicate) dropped
-        where the map names the counter."""
+    def _crank_series(self, role: str, warn: bool = True) -> Series:
+        """A crank-synchronous role's samples: a frame repeating its predecessor's counter (a
+        duplicate) dropped, where the map names the counter, and samples that came late in a
+        burst re-timed (:func:`dtid.identification.samples.late_frames.retime_late_bursts`;
+        logged when ``warn``)."""
         decoded = self.roles[role]
         t, value = decoded.timestamps, decoded.values
         counter = decoded.extra.get("counter")
         if counter is not None and len(counter) > 1:
             keep = np.concatenate(([True], np.diff(counter) != 0))
             t, value = t[keep], value[keep]
-        return Series(t, value)
-
-    def _crank_series(self, role: str) -> Series:
-        """A crank-synchronous role's samples: :meth:`_deduplicated`, and samples that came
-        late in a burst re-timed (:func:`dtid.identification.samples.late_frames.
-        retime_late_bursts`)."""
-        kept = self._deduplicated(role)
-        retiming = retime_late_bursts(kept.t)
-        if retiming.n_moved:
+        retiming = retime_late_bursts(t)
+        if retiming.n_moved and warn:
             logger.warning(
                 "%s: %d '%s' samples arrived late in bursts (up to %.3f s); re-timed to their "
                 "crank slots",
@@ -205,7 +199,7 @@ class Recording:
                 role,
                 retiming.max_shift_s,
             )
-        return Series(retiming.times, kept.value)
+        return Series(retiming.times, value)
 
 
 CRANK_ROLES = {
