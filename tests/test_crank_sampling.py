@@ -97,13 +97,14 @@ def _resent(
 
 @pytest.fixture(scope="module")
 def periodic(reference: DrivetrainParameters, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The reference vehicle's 20 s test twice: with the speed re-sent every 10 ms
-    (``periodic.blf``) and with the total torque request so (``request.blf``), and a signal map
-    without the crank counters (a periodic message has none)."""
+    """The reference vehicle's 20 s test as simulated (``crank.blf``), with the speed re-sent
+    every 10 ms (``periodic.blf``) and with the total torque request so (``request.blf``), and a
+    signal map without the crank counters (a periodic message has none)."""
     folder = tmp_path_factory.mktemp("periodic")
     interface = load_interface()
     plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=20.0)
     frames = simulation_frames(simulate(reference, plan, seed=5), interface)
+    write_log(folder / "crank.blf", frames)
     write_log(folder / "periodic.blf", _resent(frames, "EngineSpeed", interface))
     write_log(folder / "request.blf", _resent(frames, "EngineTorqueRequest", interface))
     text = (ROOT / "dbc" / "drivetrain_signals.toml").read_text()
@@ -140,3 +141,22 @@ def test_a_time_periodic_torque_request_is_left_out_with_a_warning(
     assert data.torque_request is None
     assert "the torque_request role comes 6.0 times a crank revolution" in caplog.text
     assert "driven by the measured mean torque instead" in caplog.text
+
+
+def test_a_speed_in_the_wrong_unit_is_named_by_its_own_timing(
+    periodic: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The crank-synchronous speed mapped with its value in rad/s read as rpm (a scale of
+    pi/30): its samples' timing says the crank turns 9.55 times faster than the values do.
+    Before the check, `dtid frf` read K 4.1 and an engine lag of 0.34 s from it, silently."""
+    text = (periodic / "signals.toml").read_text()
+    speed = 'signal = "EngineSpeedFiltered"\n'
+    (periodic / "radps.toml").write_text(text.replace(speed, speed + "scale = 0.10472\n"))
+    argv = ["frf", str(periodic / "crank.blf"), "--signals", str(periodic / "radps.toml")]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert "the speed role comes 38.2 times a crank revolution" in error
+    assert "the speed's values are 0.105 times what the samples' timing implies" in error
+    assert (
+        main(["frf", str(periodic / "crank.blf"), "--signals", str(periodic / "signals.toml")]) == 0
+    )

@@ -73,10 +73,17 @@ class CrankSampling:
             if self.slope is not None
             else "the engine speed too steady to tell how its interval follows it"
         )
+        scale = ""
+        if role == "speed" and not periodic:  # crank-synchronous timing, values off?
+            scale = (
+                f" (or the speed's values are {expected / self.per_revolution:.3g} times what "
+                "the samples' timing implies: check the `unit` and `scale` of the speed in the "
+                "signal map; a speed in rad/s read as rpm gives 0.105)"
+            )
         return (
             f"the {role} role comes {self.per_revolution:.1f} times a crank revolution "
             f"({self.rate_hz:.1f} Hz) where the method reads it {expected:.0f} times, and "
-            f"{follows}: not the crank-synchronous signal the paper's test needs"
+            f"{follows}: not the crank-synchronous signal the paper's test needs{scale}"
         )
 
 
