@@ -78,6 +78,10 @@ GAIN_DISAGREE = 0.05
 the strokes' (:func:`held_gain`): eq. (24)'s bias was at most 4.4 % on 67 of 68 recordings of
 random vehicles without an engine lag (the diagnosis calibration's vehicles 1-20 and 31-54, the
 blind trial's 24 lag-free cases), 16 % on calibration vehicle 53."""
+PLAUSIBLE_GAIN = (0.5, 2.0)
+"""K of eq. (3) outside which the mean torque and the torque request are more likely in
+different units or scales than the engine so far off its calibration (:func:`gain_warning`):
+the simulated vehicles' K lie within 0.85-1.05, the independent recordings' are 1.0 and 0.92."""
 
 
 @dataclass(frozen=True)
@@ -669,8 +673,9 @@ def identify_runs(
         logger.warning("%s", lag_warning(lagging, gain, "K" not in operating, modelled))
     elif "K" not in operating:
         gain, warning = held_gain(tests, ident, gain)
-        if warning:
-            logger.warning("%s", warning)
+        for message in (warning, gain_warning(gain)):
+            if message:
+                logger.warning("%s", message)
     par = Parameterization.around(prior, t_loss, gain, fixed=fixed, bounds=bounds, span=span)
     starts = start_thetas(selection.estimates(), prior)
     settings = settings or SearchSettings()
@@ -876,6 +881,28 @@ def held_gain(
         "controller with a derivative action puts the speed's fast response into the request, "
         "and the engine's once-per-stroke latch folds it into the band): the search holds the "
         f"strokes' K; --fix K={gain:.4g} holds eq. (24)'s"
+    )
+
+
+def gain_warning(gain: float) -> str | None:
+    """What to say of a K outside :data:`PLAUSIBLE_GAIN` (None within it).
+
+    |G_DRV| of eq. (14) divides the speed by the measured mean torque, so a mean torque read in
+    another unit than the request's (a percentage of a reference torque without its ``scale``)
+    scales every inertia and stiffness identified by the same factor, and eq. (24)'s K shows
+    that factor: the reference vehicle's test read with its mean torque in per cent of 450 N*m
+    gave K 0.20 and J_sum 0.060 kg*m^2 for 0.28, without a word before.
+    """
+    low, high = PLAUSIBLE_GAIN
+    if low <= gain <= high:
+        return None
+    return (
+        f"K {gain:.3g}: the engine delivers {100 * gain:.0f} % of the torque its ECU requests, "
+        "where a calibrated engine delivers about 100 %: the mean torque and the torque request "
+        "are most likely in different units or scales (a torque in per cent of a reference "
+        "torque needs the map's `scale`: docs/vehicle.md). If it is the mean torque's, the "
+        "inertias and stiffnesses identified carry that factor too (|G_DRV| divides the speed "
+        "by the mean torque)"
     )
 
 

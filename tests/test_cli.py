@@ -13,6 +13,7 @@ from json_schemas import validate
 from dtid.cli import main
 
 DATA = Path(__file__).parent / "data"
+ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--amplitudes", "5", "10", "--duration", "12", "--seed", "2"]
 
 
@@ -298,6 +299,28 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
         "m_osc",
     }
     assert plot.stat().st_size > 10_000
+
+
+def test_a_mean_torque_in_per_cent_is_named_by_its_k(
+    recording: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The reference's test with its mean torque read in per cent of 450 N*m (a map without
+    its `scale`): eq. (24) reads K 0.20, which the log names as a unit mismatch; read right,
+    K 0.90 is not named."""
+    text = (ROOT / "dbc" / "drivetrain_signals.toml").read_text()
+    signals = tmp_path / "per-cent.toml"
+    torque = 'signal = "MeanTorque"\n'
+    signals.write_text(text.replace(torque, torque + "scale = 0.2222\n"))
+    held = [*HELD, "c12=300", "d12=1.0", "eps12=0.02"]  # nothing searched: K is read before
+    argv = ["identify", str(recording), "--profile-points", "0", "--fix", *held]
+    for map_args, named in (([], False), (["--signals", str(signals)], True)):
+        caplog.clear()
+        assert main([*argv, *map_args]) == 0
+        assert (
+            "the mean torque and the torque request are most likely in different units"
+            in caplog.text
+        ) == named
+    assert "K 0.2: the engine delivers 20 % of the torque its ECU requests" in caplog.text
 
 
 def test_identify_says_when_a_parameter_ends_on_its_search_box(
