@@ -81,7 +81,8 @@ blind trial's 24 lag-free cases), 16 % on calibration vehicle 53."""
 PLAUSIBLE_GAIN = (0.5, 2.0)
 """K of eq. (3) outside which the mean torque and the torque request are more likely in
 different units or scales than the engine so far off its calibration (:func:`gain_warning`):
-the simulated vehicles' K lie within 0.85-1.05, the independent recordings' are 1.0 and 0.92."""
+the randomised trial draws K in 0.85-1.05, the independent recordings' are 1.0 and 0.92; an
+engine lag left out lowers eq. (24)'s to 0.41-0.57 (docs/model-assumptions.md)."""
 
 
 @dataclass(frozen=True)
@@ -902,7 +903,8 @@ def gain_warning(gain: float) -> str | None:
         "are most likely in different units or scales (a torque in per cent of a reference "
         "torque needs the map's `scale`: docs/vehicle.md). If it is the mean torque's, the "
         "inertias and stiffnesses identified carry that factor too (|G_DRV| divides the speed "
-        "by the mean torque)"
+        "by the mean torque). A K this low can also be an engine lagging its request by a "
+        "tenth of a second or more, which `dtid diagnose` names (torque_lag)"
     )
 
 
