@@ -160,3 +160,13 @@ def test_a_speed_in_the_wrong_unit_is_named_by_its_own_timing(
     assert (
         main(["frf", str(periodic / "crank.blf"), "--signals", str(periodic / "signals.toml")]) == 0
     )
+
+
+def test_the_strokes_of_a_three_cylinder_engine_are_named() -> None:
+    """A three-cylinder four-stroke engine fires every 4*pi/3: its mean torque comes 1.5 times a
+    revolution, which the four-cylinder model cannot read."""
+    t, rpm = _engine()
+    sampling = crank_sampling(_every(4 * math.pi / 3, t, rpm), t, rpm)
+    assert sampling is not None and sampling.per_revolution == pytest.approx(1.5, rel=0.01)
+    problem = sampling.problem("mean_torque", STROKES_PER_REVOLUTION)
+    assert problem is not None and "a four-stroke engine of 3 cylinders" in problem

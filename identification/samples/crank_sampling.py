@@ -80,6 +80,12 @@ class CrankSampling:
                 "the samples' timing implies: check the `unit` and `scale` of the speed in the "
                 "signal map; a speed in rad/s read as rpm gives 0.105)"
             )
+        elif role == "mean_torque" and not periodic:  # once per stroke of another engine?
+            scale = (
+                f" (a four-stroke engine of {2 * self.per_revolution:.0f} cylinders reports "
+                f"{self.per_revolution:.1f} strokes a revolution; the model's engine has "
+                f"{2 * STROKES_PER_REVOLUTION:.0f})"
+            )
         return (
             f"the {role} role comes {self.per_revolution:.1f} times a crank revolution "
             f"({self.rate_hz:.1f} Hz) where the method reads it {expected:.0f} times, and "
