@@ -21,13 +21,14 @@ docs/api.md shows a whole session; a test runs it.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.loader import load_interface
-from dtid.errors import AnalysisError
+from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate, estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.model.test_setup import MeasuredTest
@@ -122,6 +123,7 @@ def measured_tests(
         and speed sensor when omitted.
     """
     interface = dbc if isinstance(dbc, VehicleInterface) else load_interface(dbc, signals)
+    refuse_repeated(recordings)
     if vehicle is None:
         vehicle = VehicleData()
     elif not isinstance(vehicle, VehicleData):
@@ -132,6 +134,35 @@ def measured_tests(
         )
         for path in recordings
     ]
+
+
+def refuse_repeated(recordings: Sequence[PathLike]) -> None:
+    """Raise ConfigError where a recording is given twice: the same file, or the same bytes
+    under another name (a copy).
+
+    Each recording's runs are its own terms of eq. (17) and its own information in the profile
+    intervals: a recording counted twice weighs its runs double in the search and narrows the
+    intervals as if the test had been repeated, and the report showed it once (the runs' labels
+    are the file's name), so nothing said it had happened.
+    """
+    seen: dict[str, Path] = {}
+    for recording in recordings:
+        path = Path(recording)
+        try:
+            digest = hashlib.sha256(path.read_bytes()).hexdigest()
+        except OSError:
+            continue  # the reader names what is wrong with the file
+        if digest in seen:
+            again = (
+                "given twice"
+                if path.resolve() == seen[digest].resolve()
+                else (f"the same recording as {seen[digest]}")
+            )
+            raise ConfigError(
+                f"{path} is {again}: each recording counts once in the identification and its "
+                "intervals (a repeated test is a new recording); give it once"
+            )
+        seen[digest] = path
 
 
 def identify(

@@ -373,6 +373,19 @@ def test_a_model_that_cannot_idle_is_written_reported_and_not_diagnosed(
     assert "could not idle through" in message and "@ 5 N*m" in message
 
 
+def test_a_recording_given_twice_is_refused(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Twice would weigh its runs double in eq. (17) and narrow the intervals as if the test had
+    been repeated, while the report labelled the runs once."""
+    message = _error(capsys, ["identify", str(recording), str(recording)])
+    assert f"{recording} is given twice" in message
+    copy = tmp_path / "copy.blf"
+    shutil.copyfile(recording, copy)
+    message = _error(capsys, ["diagnose", str(recording), str(copy)])
+    assert f"{copy} is the same recording as {recording}" in message
+
+
 def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "expected NAME=VALUE" in _error(capsys, ["identify", str(recording), "--fix", "J9=1"])
     assert "is not a number" in _error(capsys, ["identify", str(recording), "--fix", "c12=stiff"])
