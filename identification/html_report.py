@@ -26,6 +26,7 @@ import hashlib
 import html
 import io
 import json
+import logging
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -43,6 +44,8 @@ from dtid.identification.frf.closed_loop import estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.plots import fit_figure, frf_figure, profiles_figure
 from dtid.identification.samples.recording import Recording, load_recording
+
+logger = logging.getLogger(__name__)
 
 IDENTIFICATION_FILE = "identification.json"
 DIAGNOSIS_FILE = "diagnosis.json"
@@ -141,14 +144,55 @@ def gather(
     id_path = Path(identification) if identification else folder / IDENTIFICATION_FILE
     dg_path = Path(diagnosis) if diagnosis else folder / DIAGNOSIS_FILE
     figure = dg_path.with_suffix(".png")
+    documents = {
+        "identification": _json(id_path, required=identification is not None),
+        "diagnosis": _json(dg_path, required=diagnosis is not None),
+    }
+    for kind, path, given in (
+        ("identification", id_path, identification),
+        ("diagnosis", dg_path, diagnosis),
+    ):
+        mismatch = _not_of_these(documents[kind], kind, path, recordings)
+        if mismatch and given:
+            raise RecordingError(mismatch)
+        if mismatch:  # found beside the recordings, not asked for
+            logger.warning("%s; left out of the report", mismatch)
+            documents[kind] = None
     return ReportInputs(
         recordings=[load_recording(p, interface) for p in recordings],
         files=recordings,
-        identification=_json(id_path, required=identification is not None),
-        diagnosis=_json(dg_path, required=diagnosis is not None),
+        identification=documents["identification"],
+        diagnosis=documents["diagnosis"],
         diagnosis_figure=figure if figure.exists() else None,
         title=title,
     )
+
+
+def _not_of_these(
+    document: dict[str, Any] | None, kind: str, path: Path, recordings: Sequence[Path]
+) -> str | None:
+    """What to say where ``document`` (an identification's or a diagnosis's JSON, or None) was
+    made of none of ``recordings``, by file name (a session directory may have moved): the page
+    would put one test's parameters beside another test's FRFs. None where it was, or where
+    it does not say."""
+    if document is None:
+        return None
+    nrmse = document.get("nrmse") if kind == "identification" else None
+    if kind == "diagnosis":
+        nrmse = (document.get("baseline") or {}).get("nrmse")
+    named = {
+        Path(str(label).split(" @ ")[0]).name
+        for runs in (nrmse or {}).values()
+        if isinstance(runs, dict)
+        for label in runs
+    }
+    given = {p.name for p in recordings}
+    if named and not named & given:
+        return (
+            f"{path} is the {kind} of {', '.join(sorted(named))}, not of "
+            f"{', '.join(sorted(given))}: give the {kind} made of these recordings"
+        )
+    return None
 
 
 def _json(path: Path, required: bool) -> dict[str, Any] | None:

@@ -139,6 +139,31 @@ def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert "holds no recording" in capsys.readouterr().err
 
 
+def test_another_tests_identification_is_not_put_beside_these_frfs(
+    command_outputs: CommandOutputs,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """An identification of other recordings, given: refused, naming both; found beside the
+    recording: left out with a warning, the report written without it."""
+    document = json.loads(json.dumps(command_outputs.documents["identification"]))
+    for runs in document["nrmse"].values():
+        for label in list(runs):
+            runs[label.replace("test.blf", "other.blf")] = runs.pop(label)
+    recording = tmp_path / "this.blf"
+    shutil.copyfile(command_outputs.recording, recording)
+    foreign = tmp_path / "identification.json"
+    foreign.write_text(json.dumps(document))
+    argv = ["report", str(recording), "-o", str(tmp_path / "r.html")]
+    assert main([*argv, "--identification", str(foreign)]) == 2
+    error = capsys.readouterr().err
+    assert "is the identification of other.blf, not of this.blf" in error
+    assert main(argv) == 0
+    assert "left out of the report" in caplog.text
+    assert "Not identified" in (tmp_path / "r.html").read_text()
+
+
 @pytest.mark.skipif(
     CHROMIUM is None, reason="Debian's chromium is not installed (apt install chromium)"
 )
