@@ -15,8 +15,9 @@ from dtid.dbc.loader import load_interface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
 from dtid.identification.frf.runs import find_runs
+from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.recording import _in_time_order, load_recording
-from dtid.identification.samples.testdata import Series
+from dtid.identification.samples.testdata import Series, from_simulation
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, SimulationResult, replay_batch, simulate
 from dtid.simulator.vehicle_frames import simulation_frames
@@ -158,3 +159,26 @@ def test_a_pause_in_the_requests_is_read_as_the_ecu_applied_it(
     held = frf_with(Series(t[~stall], value[~stall]))
     np.testing.assert_allclose(read, true, atol=0.01)
     assert np.abs(held - true).max() > 0.1
+
+
+def test_a_torque_request_without_the_test_torque_is_left_out(
+    short_test: SimulationResult, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An ECU that reports its base request (its idle controller's alone) instead of the total
+    T_ecu: the request moves 0.1-0.2 N*m per N*m of test torque instead of about 1, so it is
+    left out with a warning and the measured torque drives the model. Kept, it drove the model
+    without any chirp: NRMSE 1.0-1.2 at the truth, and eq. (24) read K 6.4."""
+    data = from_simulation(short_test)
+    assert data.torque_request is not None
+    held = np.searchsorted(data.test_torque.t, data.torque_request.t, side="right") - 1
+    test = np.where(held >= 0, data.test_torque.value[np.clip(held, 0, None)], 0.0)
+    base = Series(data.torque_request.t, data.torque_request.value - test)
+    for request, left_out in ((data.torque_request, False), (base, True)):
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            measured = MeasuredTest.from_data(
+                "test", dataclasses.replace(data, torque_request=request), 0.25
+            )
+        assert measured.loop.by_request != left_out
+        assert ("leaves out the test torque" in caplog.text) == left_out
+    assert "moves 0.1" in caplog.text

@@ -83,6 +83,10 @@ class FrfEstimate:
         S_zz, the test torque's auto-spectrum per bin, (N*m)^2/Hz: how much of the chirp each
         bin saw. Flat over the sweep, it falls in the bins at its ends, which fewer Welch
         segments see whole, and an FRF's scatter rises there as 1/S_zz.
+    request_gain
+        |S_zu / S_zz| per bin, 1: how far the torque request moves per unit of test torque (the
+        idle loop's sensitivity, near 1 above its crossover, for a total request T_ecu); NaN
+        without a torque request (:data:`REQUEST_GAIN_RANGE`).
     """
 
     run: ChirpRun
@@ -98,6 +102,7 @@ class FrfEstimate:
     eng_phase: np.ndarray
     torque_coherence: np.ndarray
     excitation: np.ndarray
+    request_gain: np.ndarray
 
     @property
     def drv_db(self) -> np.ndarray:
@@ -274,8 +279,9 @@ def estimate_frf(
         eng = engine_magnitude(f, s_zx, s_zu[keep], speed_rpm)
         phase = np.angle(s_zx / s_zu[keep])  # the hold's gain is real: it keeps the phase
         req = request_magnitude(f, s_zy, s_zu[keep], speed_rpm)
+        request_gain = np.abs(s_zu[keep]) / s_zz
     else:
-        eng = req = phase = np.full_like(f, np.nan)
+        eng = req = phase = request_gain = np.full_like(f, np.nan)
     median_coherence = float(np.median(coherence))
     if median_coherence < MIN_MEDIAN_COHERENCE:
         raise AnalysisError(
@@ -304,9 +310,18 @@ def estimate_frf(
         phase,
         torque_coherence,
         s_zz,
+        request_gain,
     )
 
 
+REQUEST_GAIN_RANGE = (0.5, 2.0)
+"""Median over a recording's runs and bins of |S_zu / S_zz| (:attr:`FrfEstimate.request_gain`)
+outside which the mapped torque request is not the total request T_ecu = controller + test
+torque of the paper's Fig. 1 (or it or the test torque is in another unit): 1.09-1.13 on the
+reference vehicle's test, 1.04-1.06 on the independent recordings, 0.93-1.17 on the randomised
+trial's vehicles 1-40 (their own idle loops, kp 0.05-0.48 N*m/rpm, hunting ones among them),
+0.16-0.18 where the reference's request was recorded without its test torque (an ECU's base
+request), 2026-12-07."""
 REQUEST_FOLLOWS = 0.9
 """Median coherence of the torque request with the test torque above which the ECU is taken to
 have added the test torque as asked (:func:`incoherence_cause`)."""

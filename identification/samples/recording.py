@@ -109,7 +109,8 @@ class Recording:
             if warn:
                 logger.warning(
                     "%s: %s; the model is driven by the measured mean torque instead, as for a "
-                    "recording without the role (docs/model-assumptions.md)",
+                    "recording without the role, and K of eq. (3) needs --fix K=VALUE "
+                    "(docs/model-assumptions.md)",
                     self.path,
                     problems["torque_request"],
                 )
