@@ -13,6 +13,7 @@ from dtid.acquisition.plan import TestPlan
 from dtid.acquisition.plan import tool_requests as plan_requests
 from dtid.dbc.loader import load_interface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
+from dtid.errors import AnalysisError
 from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.model.test_setup import MeasuredTest
@@ -182,3 +183,13 @@ def test_a_torque_request_without_the_test_torque_is_left_out(
         assert measured.loop.by_request != left_out
         assert ("leaves out the test torque" in caplog.text) == left_out
     assert "moves 0.1" in caplog.text
+
+
+def test_a_brake_torque_mapped_as_the_mean_torque_is_named(short_test: SimulationResult) -> None:
+    """The indicated mean torque less the engine's loss (a brake or net torque, as many ECUs put
+    on the bus): about zero at idle, so the loss torque came out negative and the search
+    stopped on "T_loss = -0.018 is not physical" of a parameter set nobody gave."""
+    data = from_simulation(short_test)
+    net = Series(data.mean_torque.t, data.mean_torque.value - short_test.parameters.T_loss)
+    with pytest.raises(AnalysisError, match="this looks like a brake or net torque"):
+        MeasuredTest.from_data("net", dataclasses.replace(data, mean_torque=net), 0.25)

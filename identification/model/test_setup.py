@@ -108,6 +108,14 @@ class MeasuredTest:
                 f"{name}: fewer than 10 mean-torque samples at idle outside the chirps; the loss "
                 "torque T_loss cannot be measured (record a few seconds of idle before the test)"
             )
+        if np.mean(torque) <= 0.0:
+            raise AnalysisError(
+                f"{name}: the mean torque at idle is {np.mean(torque):.2f} N*m, where the "
+                "indicated mean torque of eq. (3) carries the engine's friction and accessory "
+                "load at idle (10-20 N*m in a passenger car): this looks like a brake or net "
+                "torque, which the model cannot drive its engine with; map the indicated mean "
+                "torque, from the cylinder pressure (docs/vehicle.md)"
+            )
         vehicle = vehicle or VehicleData()
         loop = idle_loop(data, measured_lag(estimates) if vehicle.engine_lag == "measured" else 0.0)
         separated = loop.by_request and np.isfinite(loop.combustion_variation)
