@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -145,19 +146,17 @@ def refuse_repeated(recordings: Sequence[PathLike]) -> None:
     intervals as if the test had been repeated, and the report showed it once (the runs' labels
     are the file's name), so nothing said it had happened.
     """
+    paths = [Path(r) for r in recordings if Path(r).is_file()]  # the reader names the rest
+    sizes = Counter(path.stat().st_size for path in paths)
     seen: dict[str, Path] = {}
-    for recording in recordings:
-        path = Path(recording)
-        try:
-            digest = hashlib.sha256(path.read_bytes()).hexdigest()
-        except OSError:
-            continue  # the reader names what is wrong with the file
+    for path in paths:
+        if sizes[path.stat().st_size] < 2:
+            continue  # alone in its size: no copy of another
+        with path.open("rb") as handle:
+            digest = hashlib.file_digest(handle, "sha256").hexdigest()
         if digest in seen:
-            again = (
-                "given twice"
-                if path.resolve() == seen[digest].resolve()
-                else (f"the same recording as {seen[digest]}")
-            )
+            same = path.resolve() == seen[digest].resolve()
+            again = "given twice" if same else f"the same recording as {seen[digest]}"
             raise ConfigError(
                 f"{path} is {again}: each recording counts once in the identification and its "
                 "intervals (a repeated test is a new recording); give it once"
