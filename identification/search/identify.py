@@ -264,8 +264,9 @@ def engine_gain(tests: Sequence[MeasuredTest]) -> float:
     gains = [e.engine_gain for t in tests for e in t.estimates if np.isfinite(e.engine_gain)]
     if not gains:
         raise AnalysisError(
-            "no recording carries the torque request T_ecu, so K (eq. 24) cannot be measured; "
-            "map the torque_request role or fix K with --fix K=VALUE"
+            "no recording carries a torque request T_ecu the identification can use (none is "
+            "mapped, or it was left out: the warnings above say why), so K (eq. 24) cannot be "
+            "measured; map the ECU's total torque request or fix K with --fix K=VALUE"
         )
     return float(np.mean(gains))
 
