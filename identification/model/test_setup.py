@@ -108,9 +108,10 @@ class MeasuredTest:
                 f"{name}: fewer than 10 mean-torque samples at idle outside the chirps; the loss "
                 "torque T_loss cannot be measured (record a few seconds of idle before the test)"
             )
-        if np.mean(torque) <= 0.0:
+        idle_torque = float(np.mean(torque))
+        if idle_torque <= 0.0:
             raise AnalysisError(
-                f"{name}: the mean torque at idle is {np.mean(torque):.2f} N*m, where the "
+                f"{name}: the mean torque at idle is {idle_torque:.2f} N*m, where the "
                 "indicated mean torque of eq. (3) carries the engine's friction and accessory "
                 "load at idle (10-20 N*m in a passenger car): this looks like a brake or net "
                 "torque, which the model cannot drive its engine with; map the indicated mean "
@@ -124,7 +125,7 @@ class MeasuredTest:
             data,
             tuple(estimates),
             _time_mean(data.speed),
-            float(np.mean(torque)),
+            idle_torque,
             loop.combustion_variation if separated else stroke_variation(torque),
             loop,
             tuple(unusable),
