@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 from json_schemas import validate
 
-from dtid.acquisition.logfile import write_log
+from dtid.acquisition.logfile import read_log, write_log
 from dtid.acquisition.plan import TestPlan
+from dtid.acquisition.stream import samples_roles
 from dtid.cli import main
 from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.loader import load_interface
@@ -29,6 +30,7 @@ from dtid.identification.samples.crank_sampling import (
     crank_sampling,
 )
 from dtid.identification.samples.recording import load_recording
+from dtid.identification.service.live import LiveSession
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import simulate
 from dtid.simulator.vehicle_frames import simulation_frames
@@ -141,6 +143,30 @@ def test_a_time_periodic_torque_request_is_left_out_with_a_warning(
     assert data.torque_request is None
     assert "the torque_request role comes 6.0 times a crank revolution" in caplog.text
     assert "driven by the measured mean torque instead" in caplog.text
+
+
+def test_the_live_worker_says_once_that_it_left_the_request_out(
+    periodic: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The worker reads its growing session again at every block: the request left out is
+    warned about once a session, not never (it reads without :meth:`test_data`'s warnings)
+    and not at every read."""
+    interface = load_interface(signals=periodic / "signals.toml")
+    frames = read_log(periodic / "request.blf")
+    plan = {"amplitudes_nm": [5.0, 10.0]}
+    start = {"kind": "session", "session": "s1", "log_path": "request.blf", "plan": plan}
+    live = LiveSession({**start, "seq": 0, "log_start_s": frames[0].timestamp}, interface)
+    times = np.array([f.timestamp for f in frames])
+    reads = []
+    with caplog.at_level("WARNING"):
+        for lo in np.arange(times[0], times[-1] + 0.25, 0.25):
+            a, b = np.searchsorted(times, [lo, lo + 0.25])
+            roles = samples_roles(interface.decode(frames[a:b]))
+            live.apply({"kind": "samples", "roles": roles, "frames": int(b - a)})
+            if lo - times[0] > 5.0 and len(reads) < 3:  # three reads as the blocks come
+                reads.append(live.test_data())
+    assert all(data.torque_request is None for data in reads)
+    assert caplog.text.count("the torque_request role comes 6.0 times a crank revolution") == 1
 
 
 def test_a_speed_in_the_wrong_unit_is_named_by_its_own_timing(

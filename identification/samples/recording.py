@@ -107,19 +107,23 @@ class Recording:
                 )
         if "torque_request" in problems:
             if warn:
-                logger.warning(
-                    "%s: %s; the model is driven by the measured mean torque instead, as for a "
-                    "recording without the role, and K of eq. (3) needs --fix K=VALUE "
-                    "(docs/model-assumptions.md)",
-                    self.path,
-                    problems["torque_request"],
-                )
+                self.warn_request_left_out(problems["torque_request"])
             del series["torque_request"]
         return TestData(
             speed=series["speed"],
             mean_torque=series["mean_torque"],
             test_torque=self._applied_test_torque(warn),
             torque_request=series.get("torque_request"),
+        )
+
+    def warn_request_left_out(self, problem: str) -> None:
+        """Log that the torque request is left out for ``problem`` in its sampling."""
+        logger.warning(
+            "%s: %s; the model is driven by the measured mean torque instead, as for a "
+            "recording without the role, and K of eq. (3) needs --fix K=VALUE "
+            "(docs/model-assumptions.md)",
+            self.path,
+            problem,
         )
 
     def sampling_problems(self) -> dict[str, str]:

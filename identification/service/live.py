@@ -117,6 +117,9 @@ class LiveSession:
         What the model knows of the vehicle besides its drivetrain (the reference's by default).
     pauses_reported
         Pauses in the test-torque requests warned about so far.
+    request_left_out
+        Whether the torque request was found sampled otherwise than crank-synchronously and
+        left out (warned about once a session).
     """
 
     start: Mapping[str, Any]
@@ -131,6 +134,7 @@ class LiveSession:
     health: Mapping[str, Any] | None = None
     end: Mapping[str, Any] | None = None
     pauses_reported: int = 0
+    request_left_out: bool = False
 
     @property
     def id(self) -> str:
@@ -242,10 +246,19 @@ class LiveSession:
         )
 
     def test_data(self) -> TestData:
-        """The FRF pipeline's signals so far (a pause in the requests is reported once)."""
+        """The FRF pipeline's signals so far (a pause in the requests, and a torque request
+        left out for its sampling, are reported once)."""
         recording = self.recording()
         self.pauses_reported = recording.warn_pauses(self.pauses_reported)
-        return recording.test_data(warn=False)
+        data = recording.test_data(warn=False)
+        request = recording.roles.get("torque_request")
+        mapped = request is not None and len(request.timestamps) > 1
+        if data.torque_request is None and mapped and not self.request_left_out:
+            problem = recording.sampling_problems().get("torque_request")
+            if problem is not None:
+                recording.warn_request_left_out(problem)
+                self.request_left_out = True
+        return data
 
     # --- FRFs ---------------------------------------------------------------------------------
 
