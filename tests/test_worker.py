@@ -505,58 +505,69 @@ def test_validation_chirp_with_lost_frames_leaves_the_identification_unvalidated
     assert json.loads((ipc_dir / "r.json").read_text()) == result
 
 
-def _replayed(
-    session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
-) -> tuple[FakeDaemon, list[tuple[str, dict[str, Any]]]]:
+@dataclass
+class Replayed:
+    """What a worker started after the session ended sent and asked for."""
+
+    requests: list[int]
+    """The replay pages it asked for, by first seq."""
+    messages: list[tuple[str, dict[str, Any]]]
+    """Its published messages: (topic, document)."""
+
+
+@pytest.fixture(scope="module")
+def replayed(session: SimulatedSession) -> Iterator[Replayed]:
     """A worker started after the session ended, fed by the replay alone in pages of 40 events
     (so that the session takes several), diagnosing and planning the follow-up for one vehicle
-    around the identified one (its files beside the log); its requests and messages."""
-    monkeypatch.setattr(worker_module, "REPLAY_PAGE", 40)
-    pipeline = _pipeline(ipc_dir)
+    around the identified one (its files beside the log); run once for the tests that compare
+    it with the commands."""
+    folder = Path(tempfile.mkdtemp(prefix="dtidw-", dir="/tmp"))
+    pipeline = _pipeline(folder)
     daemon = FakeDaemon(pipeline, session.events, page=40)
-    daemon.go.set()
-    assert daemon.done.wait(10)
-    options = WorkerOptions(
-        settings=BUDGET, profile_points=0, diagnose=True, plan_follow_up=True, plan_vehicles=1
-    )
     try:
-        status, messages, _ = _serve(pipeline, options, timeout_s=600.0)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(worker_module, "REPLAY_PAGE", 40)
+            daemon.go.set()
+            assert daemon.done.wait(10)
+            options = WorkerOptions(
+                settings=BUDGET,
+                profile_points=0,
+                diagnose=True,
+                plan_follow_up=True,
+                plan_vehicles=1,
+            )
+            status, messages, _ = _serve(pipeline, options, timeout_s=600.0)
     finally:
         daemon.close()
     assert status == 0
-    return daemon, messages
+    yield Replayed(list(daemon.requests), messages)
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 def test_replay_alone_gives_the_live_result(
-    session: SimulatedSession, ipc_dir: Path, offline: dict, monkeypatch: pytest.MonkeyPatch
+    session: SimulatedSession, replayed: Replayed, offline: dict
 ) -> None:
     """A worker started after the session ended gets every event from the replay, page by page,
-    and identifies, diagnoses and plans the follow-up as `dtid identify` and `dtid diagnose`
-    do on the log."""
-    daemon, messages = _replayed(session, ipc_dir, monkeypatch)
-    assert daemon.requests[0] == 0
-    assert daemon.requests[: len(session.events) // 40 + 1] == list(
-        range(0, len(session.events), 40)
-    )
+    identifies as `dtid identify` does on the log, and diagnoses and plans the follow-up beside
+    its identification (compared with `dtid diagnose` and `dtid plan --after` by the slow tests
+    below)."""
+    requests, messages = replayed.requests, replayed.messages
+    assert requests[0] == 0
+    assert requests[: len(session.events) // 40 + 1] == list(range(0, len(session.events), 40))
     (result,) = [d for t, d in messages if t == "result"]
     assert _without_wall_time(result) == _without_wall_time(offline["identify"])
     folder = session.log_path.parent
     assert json.loads((folder / "identification.json").read_text()) == result
     assert (folder / "identification.png").stat().st_size > 10_000
-    # [worker] diagnose: the diagnosis `dtid diagnose --identification` gives on the log
-    (diagnosis,) = [d for t, d in messages if t == "diagnosis"]
+    # [worker] diagnose: published, and written beside the log
+    (diagnosis,) = [dict(d) for t, d in messages if t == "diagnosis"]
     assert diagnosis.pop("session") == "s1"
     written = json.loads((folder / "diagnosis.json").read_text())
     assert written == diagnosis
-    identification = folder / "identification.json"
-    out = folder / "offline-diagnosis.json"
-    command = ["diagnose", str(session.log_path), "--identification", str(identification)]
-    assert main([*command, "--json", str(out)]) == 0
-    offline_diagnosis = json.loads(out.read_text())
-    for key in ("adequate", "mismatch", "test", "hints"):
-        assert written[key] == offline_diagnosis[key], key
+    validate(written, "diagnosis")
+    assert written["adequate"] and written["verdict"]["mechanisms"] == []  # the paper's plant
     # [worker] plan_follow_up: the session's identifying runs counted in, its validation held out
-    (plan,) = [d for t, d in messages if t == "plan"]
+    (plan,) = [dict(d) for t, d in messages if t == "plan"]
     assert plan.pop("session") == "s1"
     assert json.loads((folder / "follow-up.json").read_text()) == plan
     validate(plan, "plan")
@@ -569,16 +580,31 @@ def test_replay_alone_gives_the_live_result(
             assert value < plan["recorded"]["predicted_precision"][name], name
 
 
-@pytest.mark.slow  # the replayed worker again, and dtid plan --after beside it (80 s)
+@pytest.mark.slow  # dtid diagnose beside the replayed worker (35 s)
+def test_the_replayed_workers_diagnosis_is_dtid_diagnoses(
+    session: SimulatedSession, replayed: Replayed
+) -> None:
+    """The worker's diagnosis is what `dtid diagnose --identification` gives on the log."""
+    folder = session.log_path.parent
+    written = json.loads((folder / "diagnosis.json").read_text())
+    identification = folder / "identification.json"
+    out = folder / "offline-diagnosis.json"
+    command = ["diagnose", str(session.log_path), "--identification", str(identification)]
+    assert main([*command, "--json", str(out)]) == 0
+    offline_diagnosis = json.loads(out.read_text())
+    for key in ("adequate", "mismatch", "test", "hints"):
+        assert written[key] == offline_diagnosis[key], key
+
+
+@pytest.mark.slow  # dtid plan --after beside the replayed worker (35 s)
 def test_the_replayed_workers_follow_up_is_dtid_plan_afters(
-    session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
+    session: SimulatedSession, replayed: Replayed
 ) -> None:
     """The worker's follow-up is `dtid plan --after`'s on the log, planned for a vehicle around
     the identified one too, each parameter within twice the precision reached (close, not
     equal: the log's set-point differs from the stream's in the last digits, and the friction's
     information moves with them)."""
-    _, messages = _replayed(session, ipc_dir, monkeypatch)
-    (plan,) = [d for t, d in messages if t == "plan"]
+    (plan,) = [d for t, d in replayed.messages if t == "plan"]
     folder = session.log_path.parent
     identification = folder / "identification.json"
     out = folder / "offline-plan.json"
