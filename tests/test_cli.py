@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 from pathlib import Path
@@ -11,6 +12,7 @@ from conftest import HELD
 from json_schemas import validate
 
 from dtid.cli import main
+from dtid.cli.commands.common import ProgressBar
 
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).resolve().parents[1]
@@ -407,3 +409,35 @@ def test_profile_needs_a_setup_or_recordings(
 ) -> None:
     assert "not both" in _error(capsys, ["profile"])
     assert "not both" in _error(capsys, ["profile", str(recording), "--setup", "2"])
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_the_progress_bar_keeps_a_log_file_readable() -> None:
+    """Off a terminal (a log file, the journal) a stage writes a line at each quarter, not a
+    redrawn bar; on one, a stage that stopped early (a converged polish) keeps its line."""
+    calls = [("global", step, 8, 0.5 - 0.01 * step) for step in range(1, 9)]
+    calls += [("local", 50, 150, 0.2), ("local", 100, 150, 0.19), ("local", 50, 150, 0.18)]
+    log = io.StringIO()
+    bar = ProgressBar(log)
+    for call in calls:
+        bar(*call)
+    lines = log.getvalue().splitlines()
+    assert "\r" not in log.getvalue()
+    assert [line.split()[0] for line in lines] == ["global"] * 5 + ["local"] * 3
+    assert lines[4] == " global [##############################] 8/8 objective 0.4200"
+    screen = _Terminal()
+    bar = ProgressBar(screen)
+    for call in calls:
+        bar(*call)
+    kept = screen.getvalue().split("\n")  # the lines left on the screen, each its last redraw
+    assert [line.rsplit("\r", 1)[-1].split()[:3] for line in kept[:3]] == [
+        ["global", "[##############################]", "8/8"],
+        ["local", "[####################..........]", "100/150"],
+        ["local", "[##########....................]", "50/150"],
+    ]
+    bar.finish()  # before the result is printed: the last bar stopped early
+    assert screen.getvalue().endswith("50/150 objective 0.1800\n")

@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import TextIO
 
 from dtid.errors import ConfigError
 from dtid.simulator.vehicle_data import (
@@ -111,3 +113,56 @@ def read_identification(path: Path, option: str = "--identification") -> dict:
             "the file `dtid identify --json` wrote"
         )
     return document
+
+
+class ProgressBar:
+    """The search's progress on stderr, one bar per stage (``global``, ``local``, ``profile``,
+    ...) with its best objective so far.
+
+    On a terminal the bar is redrawn in place, and a stage that stops before its last step
+    (a converged polish) keeps its line. Elsewhere (a log file, a pipe, the journal) a line is
+    written at each quarter of a stage, so that the log stays readable.
+
+    Parameters
+    ----------
+    stream
+        Where to write (stderr by default).
+    """
+
+    WIDTH = 30
+    """Characters of the bar."""
+
+    def __init__(self, stream: TextIO | None = None) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.terminal = self.stream.isatty()
+        # the last call's stage, step, steps and quarter
+        self._last: tuple[str, int, int, int] | None = None
+
+    def __call__(self, stage: str, step: int, steps: int, best: float) -> None:
+        """Show ``step`` of ``steps`` of ``stage``, its best objective ``best`` (1)."""
+        step_in = min(step, steps)
+        done = self.WIDTH * step_in // steps
+        quarter = 4 * step_in // steps
+        text = (
+            f"{stage:>7} [{'#' * done}{'.' * (self.WIDTH - done)}] {step}/{steps} "
+            f"objective {best:.4f}"
+        )
+        last, self._last = self._last, (stage, step, steps, quarter)
+        if self.terminal:
+            if self._stopped_early(last) and (last[0] != stage or step < last[1]):
+                self.stream.write("\n")  # keep the line of the stage before
+            self.stream.write(f"\r{text}" + ("\n" if step >= steps else ""))
+        elif last is None or (last[0], last[3]) != (stage, quarter) or step < last[1]:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def finish(self) -> None:
+        """End the line of a last stage that stopped early, before the result is printed."""
+        if self.terminal and self._stopped_early(self._last):
+            self.stream.write("\n")
+            self.stream.flush()
+        self._last = None
+
+    @staticmethod
+    def _stopped_early(last: tuple[str, int, int, int] | None) -> bool:
+        return last is not None and last[1] < last[2]

@@ -18,13 +18,13 @@ import math
 from pathlib import Path
 
 from dtid.cli.commands.common import (
+    ProgressBar,
     add_interface_options,
     add_vehicle_option,
     read_identification,
     vehicle_data,
 )
 from dtid.cli.commands.identify import (
-    _progress,
     add_bounds_options,
     add_identify_option,
     add_search_options,
@@ -89,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         diagnosis = diagnose_document(tests, document, args.identify, mechanisms=args.mechanisms)
     else:
         vehicle = vehicle_data(args)
+        bar = ProgressBar()
         report = identify(
             args.recordings,
             dbc=args.dbc,
@@ -100,8 +101,9 @@ def run(args: argparse.Namespace) -> int:
             identify_amplitudes=args.identify,
             settings=search_settings(args),
             profile_points=args.profile_points,
-            progress=_progress,
+            progress=bar,
         )
+        bar.finish()
         diagnosis = diagnose_report(
             report, mechanisms=args.mechanisms, profile_points=args.profile_points
         )

@@ -12,12 +12,12 @@ values. Intervals wider than ``dtid plan``'s default targets are listed after th
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 from dtid.cli.commands.common import (
+    ProgressBar,
     add_interface_options,
     add_vehicle_option,
     positive_float,
@@ -265,17 +265,6 @@ def parse_fixed(items: list[str]) -> dict[str, float]:
     return fixed
 
 
-def _progress(stage: str, step: int, steps: int, best: float) -> None:
-    width = 30
-    done = int(width * min(step, steps) / steps)
-    sys.stderr.write(
-        f"\r{stage:>7} [{'#' * done}{'.' * (width - done)}] {step}/{steps} objective {best:.4f}"
-    )
-    if step >= steps:
-        sys.stderr.write("\n")
-    sys.stderr.flush()
-
-
 def run(args: argparse.Namespace) -> int:
     """Identify, print the result, write JSON and plot as asked."""
     fixed = parse_fixed(args.fix)
@@ -283,6 +272,7 @@ def run(args: argparse.Namespace) -> int:
     settings = search_settings(args)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
     vehicle = vehicle_data(args)
+    bar = ProgressBar()
     report = identify(
         args.recordings,
         dbc=args.dbc,
@@ -295,8 +285,9 @@ def run(args: argparse.Namespace) -> int:
         identify_amplitudes=args.identify,
         settings=settings,
         profile_points=args.profile_points,
-        progress=_progress,
+        progress=bar,
     )
+    bar.finish()
     print_report(report.as_dict(), fixed, follow_up_command(args))
     print(vehicle.describe())
     if args.json:
