@@ -27,6 +27,7 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from dtid.acquisition.metadata import read_metadata
 from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.loader import load_interface
 from dtid.errors import AnalysisError, ConfigError
@@ -125,6 +126,7 @@ def measured_tests(
     """
     interface = dbc if isinstance(dbc, VehicleInterface) else load_interface(dbc, signals)
     refuse_repeated(recordings)
+    refuse_mixed_vehicles(recordings)
     if vehicle is None:
         vehicle = VehicleData()
     elif not isinstance(vehicle, VehicleData):
@@ -162,6 +164,34 @@ def refuse_repeated(recordings: Sequence[PathLike]) -> None:
                 "intervals (a repeated test is a new recording); give it once"
             )
         seen[digest] = path
+
+
+def refuse_mixed_vehicles(recordings: Sequence[PathLike]) -> None:
+    """Raise ConfigError where the recordings' metadata name different vehicles.
+
+    One identification fits one drivetrain to every run: recordings of two vehicles give
+    parameters of neither, fitted as well as the search can and reported without a word. The
+    name is the metadata's ``vehicle`` (the daemon's ``[output] vehicle``: a name or VIN),
+    compared without case or surrounding blanks; recordings without one are not judged.
+    """
+    files: dict[str, list[str]] = {}
+    spelt: dict[str, str] = {}  # each vehicle's name as its first recording gives it
+    for recording in recordings:
+        if not Path(recording).is_file():
+            continue  # the reader names it
+        name = (read_metadata(recording) or {}).get("vehicle")
+        if isinstance(name, str) and name.strip():
+            key = name.strip().casefold()
+            spelt.setdefault(key, name.strip())
+            files.setdefault(key, []).append(str(recording))
+    if len(files) > 1:
+        named = "; ".join(f"{', '.join(paths)} of {spelt[key]!r}" for key, paths in files.items())
+        raise ConfigError(
+            f"the recordings come from {len(files)} vehicles by their metadata ({named}): one "
+            "identification is one drivetrain. Identify each vehicle on its own (`dtid batch` "
+            "identifies a fleet, vehicle by vehicle); where they are one vehicle under two names, "
+            "correct the `vehicle` of the metadata beside the recording (docs/formats.md)"
+        )
 
 
 def identify(

@@ -101,7 +101,9 @@ def test_the_order_the_recordings_come_in_does_not_change_the_identification(
     assert first.objective == last.objective
 
 
-def test_dtid_identify_takes_a_validation_chirp_in_a_file_of_its_own(tmp_path: Path) -> None:
+def test_dtid_identify_takes_a_validation_chirp_in_a_file_of_its_own(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """The paper's layout, one chirp per file: before, the search ran and the selection of the
     runs then failed with 'no chirp run has an amplitude among 5, 10 N*m'."""
     files = []
@@ -115,6 +117,15 @@ def test_dtid_identify_takes_a_validation_chirp_in_a_file_of_its_own(tmp_path: P
     assert main(["identify", *files, *budget, "--profile-points", "0", "--json", str(out)]) == 0
     document = out.read_text()
     assert "run_A2.blf @ 2 N*m" in document and "run_A10.blf @ 10 N*m" in document
+    # recordings whose metadata name two vehicles are refused, not fitted as one drivetrain
+    for path, vehicle in zip(files, ("van-a", "Van-A ", "van-b"), strict=True):
+        sidecar = Path(f"{path}.json")
+        sidecar.write_text(json.dumps({**json.loads(sidecar.read_text()), "vehicle": vehicle}))
+    assert main(["identify", *files, *budget]) == 2
+    error = capsys.readouterr().err
+    assert (
+        "come from 2 vehicles" in error and "run_A2.blf of 'van-b'" in error and "'van-a'" in error
+    ), error
 
 
 def test_dtid_simulate_puts_the_validation_chirp_last(tmp_path: Path) -> None:
