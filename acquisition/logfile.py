@@ -72,6 +72,25 @@ _TEXT_READERS = {
 #: Suffixes of the recording formats read and written.
 SUPPORTED_SUFFIXES: tuple[str, ...] = tuple(sorted(_WRITERS))
 
+ONE_BASED_CHANNELS = (".asc", ".blf")
+"""Formats whose channels python-can's readers number from 0 where the file counts from 1."""
+
+
+def recorded_channel(channel: object, suffix: str) -> str | None:
+    """A frame's bus channel (``can.Message.channel`` as read) as a recording of format
+    ``suffix`` names it; None where the format keeps none (.csv).
+
+    python-can's readers number an .asc or .blf file's channels from 0 (its writers add the 1
+    back), where the file, and the Vector tools that show it, count from 1; a .trc or .mf4
+    file's number and a candump log's interface name (``can1``) are kept as the file gives them.
+    """
+    if channel is None:
+        return None
+    if suffix.lower() in ONE_BASED_CHANNELS and isinstance(channel, int):
+        return str(channel + 1)
+    return str(channel)
+
+
 # Last line of a complete ASC file, lower case.
 _ASC_END = "end triggerblock"
 # Characters that never occur in a text CAN log (control characters but tab, CR and LF).

@@ -151,6 +151,14 @@ class VehicleInterface:
         for bound in self._roles.values():
             key = (bound.message.frame_id, bound.message.is_extended_frame)
             self._roles_by_frame.setdefault(key, []).append(bound)
+        for roles in self._roles_by_frame.values():
+            if len({bound.spec.channel for bound in roles}) > 1:
+                named = ", ".join(f"{b.spec.role} {b.spec.channel!r}" for b in roles)
+                raise ConfigError(
+                    f"signal map {signal_map.source}: the roles of message "
+                    f"'{roles[0].message.name}' name different channels ({named}); a message "
+                    "is read from one channel: give them the same"
+                )
 
     def _bind(self, spec: "RoleSpec") -> _BoundRole:
         where = f"signal map {self.signal_map.source}: role '{spec.role}'"
@@ -202,6 +210,12 @@ class VehicleInterface:
         :func:`dtid.dbc.checksum.verify_checksum` checks on a received payload)."""
         bound = self._roles.get(role)
         return bound is not None and bound.product_checksum
+
+    def channel(self, role: str) -> str | None:
+        """The recording's channel the role's message is read from (the signal map's
+        ``channel``), None where not given."""
+        self.signal_map.require(role)
+        return self._roles[role].spec.channel
 
     def frame_key(self, role: str) -> tuple[int, bool]:
         """Arbitration ID and whether it is extended, of the role's message."""

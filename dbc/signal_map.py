@@ -20,6 +20,13 @@ role                canonical    optional keys
 ``heartbeat``       (raw state)  none
 ==================  ===========  ===============================================
 
+Every role may also give ``channel``: the bus channel of its message in a recording of several
+buses, as the recording names it (an integer for .asc, .blf, .trc and .mf4 files, counted as the
+file and Vector's tools count, from 1; a string such as ``"can1"`` for a candump log). A logger on
+two buses may see a message on both (a gateway forwards it), or two buses may use one ID for
+different messages: without ``channel`` such a recording is refused, naming the channels. The
+daemon, on one bus, ignores it.
+
 ``counter``, ``cylinder``, ``enable`` and ``checksum`` name further signals of the same message.
 ``unit`` is the unit of the decoded signal after ``scale`` when it differs from the canonical one,
 and ``scale`` a factor applied after decoding (for a torque in % of a 450 N*m reference,
@@ -87,6 +94,9 @@ class RoleSpec:
     timeout_s : float
         For the test torque: bus time after the last valid request from which the ECU applies
         zero, s; :data:`dtid.dbc.roles.DEFAULT_REQUEST_TIMEOUT_S` unless the map gives it.
+    channel : str or None
+        The recording's bus channel of the message, as the recording names it
+        (:func:`dtid.acquisition.logfile.recorded_channel`); None: wherever it is, on one channel.
     """
 
     role: str
@@ -99,6 +109,7 @@ class RoleSpec:
     enable: str | None = None
     checksum: str | None = None
     timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
+    channel: str | None = None
 
     @property
     def canonical_unit(self) -> str | None:
@@ -198,7 +209,9 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
     extra_keys = EXTRA_SIGNAL_KEYS[role]
     canonical = CANONICAL_UNITS[role]
     timeout_keys = ("timeout_s",) if role == "test_torque" else ()
-    allowed = _NAME_KEYS + (("unit", "scale") if canonical else ()) + extra_keys + timeout_keys
+    allowed = (
+        _NAME_KEYS + (("unit", "scale") if canonical else ()) + extra_keys + timeout_keys
+    ) + ("channel",)
     for key in table:
         if key not in allowed:
             raise ConfigError(
@@ -251,7 +264,26 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
             f"{timeout!r}; e.g. timeout_s = 0.05 for an ECU that drops the test torque 50 ms "
             "after the last request"
         )
-    return RoleSpec(role=role, unit=unit, scale=float(scale), timeout_s=float(timeout), **names)
+    channel = table.get("channel")
+    if channel is not None and (
+        isinstance(channel, bool)
+        or not isinstance(channel, int | str)
+        or (isinstance(channel, int) and channel < 0)
+        or (isinstance(channel, str) and not channel.strip())
+    ):
+        raise ConfigError(
+            f"{where} key 'channel' must be the recording's bus channel: a number as an .asc or "
+            f".blf file counts it (channel = 1) or a name as a candump log gives it (channel = "
+            f'"can1"), got {_type_name(channel)} {channel!r}'
+        )
+    return RoleSpec(
+        role=role,
+        unit=unit,
+        scale=float(scale),
+        timeout_s=float(timeout),
+        channel=None if channel is None else str(channel).strip(),
+        **names,
+    )
 
 
 def load_signal_map(path: str | os.PathLike[str]) -> SignalMap:

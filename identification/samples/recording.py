@@ -16,6 +16,7 @@ from dtid.dbc.ecu_requests import applied_test_torque
 from dtid.dbc.interface import RoleSeries, VehicleInterface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import AnalysisError
+from dtid.identification.samples.channels import frames_of_role_channels
 from dtid.identification.samples.crank_sampling import (
     SPEED_PER_REVOLUTION,
     STROKES_PER_REVOLUTION,
@@ -316,7 +317,7 @@ def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) ->
     frames, integrity = read_log_checked(path)
     recording = recording_from_series(
         path,
-        interface.decode(frames),
+        interface.decode(frames_of_role_channels(frames, interface, path)),
         frames[0].timestamp,
         len(frames),
         frames[-1].timestamp,
