@@ -5,16 +5,18 @@ named, that channel's frames alone are decoded."""
 from __future__ import annotations
 
 import copy
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
+from json_schemas import validate
 
 from dtid.acquisition.logfile import recorded_channel, write_log
 from dtid.acquisition.plan import TestPlan
 from dtid.cli import main
 from dtid.dbc.loader import load_interface
-from dtid.errors import ConfigError, RecordingError
+from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.samples.recording import load_recording
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import simulate
@@ -61,13 +63,32 @@ def two_buses(reference: DrivetrainParameters, tmp_path_factory: pytest.TempPath
     return folder
 
 
-def test_a_message_on_two_buses_is_refused_naming_them(two_buses: Path) -> None:
-    with pytest.raises(RecordingError) as raised:
-        load_recording(two_buses / "two.asc", load_interface())
+def test_a_message_on_two_buses_is_shown_by_inspect_and_refused_by_the_analysis(
+    two_buses: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    recording = load_recording(two_buses / "two.asc", load_interface())
+    assert recording.channels["speed"] == {"1": 2199, "2": 2199}
+    assert recording.channels["mean_torque"] == {"1": 1099}
+    with pytest.raises(AnalysisError) as raised:
+        recording.test_data()
     message = str(raised.value)
     assert "role speed ('EngineSpeed', ID 0x" in message
-    assert "comes on channels 1 (" in message and "), 2 (" in message
+    assert "comes on channels 1 (2199 frames), 2 (2199 frames)" in message
     assert "channel = 1" in message
+    out = two_buses / "inspect.json"
+    assert main(["inspect", str(two_buses / "two.asc"), "--json", str(out)]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "inspect")
+    assert list(document["channel_problems"]) == ["speed"]
+    assert "comes on channels 1 (2199 frames), 2 (2199 frames)" in capsys.readouterr().out
+    signals = _map(two_buses, "bus2.toml", "2")
+    assert main(["inspect", str(two_buses / "two.asc"), "--signals", str(signals)]) == 0
+    printed = capsys.readouterr().out
+    assert (
+        "speed: its message is on channels 1 (2199 frames), 2 (2199 frames); the signal" in printed
+    )
+    assert main(["frf", str(two_buses / "two.asc")]) == 2
+    assert "comes on channels 1" in capsys.readouterr().err
 
 
 def test_the_named_channel_alone_is_decoded(two_buses: Path) -> None:
@@ -86,8 +107,8 @@ def test_the_named_channel_alone_is_decoded(two_buses: Path) -> None:
 
 def test_a_wrong_or_useless_channel_is_named(two_buses: Path, capsys) -> None:
     interface = load_interface(signals=_map(two_buses, "bus3.toml", "3"))
-    with pytest.raises(RecordingError, match=r"is not on channel '3'.* but on 1 .*, 2 "):
-        load_recording(two_buses / "two.asc", interface)
+    with pytest.raises(AnalysisError, match=r"is not on channel '3'.* but on 1 .*, 2 "):
+        load_recording(two_buses / "two.asc", interface).test_data()
     signals = _map(two_buses, "bad.toml", "-1")
     assert main(["inspect", str(two_buses / "one.asc"), "--signals", str(signals)]) == 2
     assert "key 'channel' must be the recording's bus channel" in capsys.readouterr().err

@@ -69,6 +69,8 @@ def report(recording: Recording) -> dict[str, object]:
         "integrity": recording.integrity.as_dict(),
         "metadata": read_metadata(recording.path),
         "sampling": recording.sampling_problems(),
+        "channels": {role: dict(found) for role, found in recording.channels.items()},
+        "channel_problems": dict(recording.channel_problems),
     }
 
 
@@ -125,6 +127,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {s['bad_frames']} frames of {role} could not be decoded")
     for role in document["missing_roles"]:
         print(f"{role:<16}not in the signal map")
+    problems = document["channel_problems"]
+    for role, found in document["channels"].items():
+        if len(found) > 1 and role not in problems:
+            listed = ", ".join(f"{channel} ({n} frames)" for channel, n in found.items())
+            print(f"  {role}: its message is on channels {listed}; the signal map's is read")
+    for problem in problems.values():
+        print(f"  {problem}: frf, identify and diagnose refuse the recording")
     for role, problem in document["sampling"].items():
         effect = (
             "the model is then driven by the measured torque"

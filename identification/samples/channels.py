@@ -3,30 +3,51 @@
 A logger on two buses records a message twice where a gateway forwards it from one bus to the
 other, and two buses may use one ID for different messages. Decoded together, such frames give a
 series with every sample twice or two signals interleaved: the crank-sampling check then reads
-twice the rate, or nothing at all is right. A role's message found on more than one channel is
-therefore refused unless the signal map names the role's ``channel``
-(:class:`dtid.dbc.signal_map.RoleSpec`), and with a channel named, that channel's frames alone
-are decoded. The channels are named as the recording names them
-(:func:`dtid.acquisition.logfile.recorded_channel`).
+twice the rate, or nothing at all is right. Where the signal map names a role's ``channel``
+(:class:`dtid.dbc.signal_map.RoleSpec`) that channel's frames alone are decoded; a role's message
+found on several channels without one named, or not on the one named, is a problem of the role
+that ``dtid inspect`` shows and the analysis refuses
+(:meth:`dtid.identification.samples.recording.Recording.test_data`). Channels are named as the
+recording names them (:func:`dtid.acquisition.logfile.recorded_channel`).
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import can
 
 from dtid.acquisition.logfile import recorded_channel
 from dtid.dbc.interface import VehicleInterface
-from dtid.errors import RecordingError
 
 
-def frames_of_role_channels(
+@dataclass(frozen=True)
+class ChannelSelection:
+    """The frames to decode, and the channels each role's message came on.
+
+    Attributes
+    ----------
+    frames
+        The recording's frames less those of a mapped message on another channel than the one
+        its role names.
+    found
+        Per role whose message the recording holds on a named channel: frames per channel.
+    problems
+        Per role: why its frames cannot be read as one series (they are left as recorded).
+    """
+
+    frames: Sequence[can.Message]
+    found: Mapping[str, Mapping[str, int]] = field(default_factory=dict)
+    problems: Mapping[str, str] = field(default_factory=dict)
+
+
+def select_channels(
     frames: Sequence[can.Message], interface: VehicleInterface, path: Path
-) -> Sequence[can.Message]:
-    """``frames`` less those of a mapped message on another channel than its role's.
+) -> ChannelSelection:
+    """Each role's frames from its channel (see the module notes).
 
     Parameters
     ----------
@@ -35,13 +56,7 @@ def frames_of_role_channels(
     interface
         The signal map bound to the DBC: each role's message and channel.
     path
-        The recording: its suffix says how it names channels, and messages name it.
-
-    Raises
-    ------
-    RecordingError
-        Where a role's message comes on several channels and the map names none, or not on
-        the channel the map names.
+        The recording: its suffix says how it names channels; messages name it.
     """
     roles: dict[tuple[int, bool], list[str]] = {}
     for role in interface.present_roles():
@@ -51,6 +66,8 @@ def frames_of_role_channels(
         counter = counts.get((frame.arbitration_id, frame.is_extended_id))
         if counter is not None:
             counter[frame.channel] += 1
+    found: dict[str, dict[str, int]] = {}
+    problems: dict[str, str] = {}
     keep: dict[tuple[int, bool], str] = {}
     for key, counter in counts.items():
         named: Counter = Counter()
@@ -58,40 +75,43 @@ def frames_of_role_channels(
             named[recorded_channel(channel, path.suffix)] += n
         if set(named) <= {None}:
             continue  # absent (the decoding says so), or a format without channels
-        wanted = interface.channel(roles[key][0])
-        found = ", ".join(
-            f"{channel} ({n} frames)" for channel, n in sorted(named.items(), key=str)
-        )
+        channels = {str(channel): n for channel, n in sorted(named.items(), key=str)}
+        listed = ", ".join(f"{channel} ({n} frames)" for channel, n in channels.items())
         what = (
             f"{path}: the message of role {', '.join(roles[key])} "
             f"('{interface.signal_map.roles[roles[key][0]].message}', ID 0x{key[0]:X})"
         )
-        if wanted is None:
-            if len(named) > 1:
-                raise RecordingError(
-                    f"{what} comes on channels {found}: a logger of two buses records it twice "
-                    "where a gateway forwards it, or two buses use the ID for different "
-                    "messages; give the role's channel in the signal map (channel = "
-                    f"{_example(named)}; docs/vehicle.md, Signal maps)"
-                )
-        elif wanted not in named:
-            raise RecordingError(
-                f"{what} is not on channel {wanted!r}, which the signal map names, but on "
-                f"{found}; correct the role's channel"
+        wanted = interface.channel(roles[key][0])
+        problem = None
+        if wanted is None and len(named) > 1:
+            problem = (
+                f"{what} comes on channels {listed}: a logger of two buses records it twice "
+                "where a gateway forwards it, or two buses use the ID for different messages; "
+                f"give the role's channel in the signal map (channel = {_example(channels)}; "
+                "docs/vehicle.md, Signal maps)"
             )
-        elif len(named) > 1:
+        elif wanted is not None and wanted not in named:
+            problem = (
+                f"{what} is not on channel {wanted!r}, which the signal map names, but on "
+                f"{listed}; correct the role's channel"
+            )
+        elif wanted is not None and len(named) > 1:
             keep[key] = wanted
-    if not keep:
-        return frames
-    return [
-        frame
-        for frame in frames
-        if (key := (frame.arbitration_id, frame.is_extended_id)) not in keep
-        or recorded_channel(frame.channel, path.suffix) == keep[key]
-    ]
+        for role in roles[key]:
+            found[role] = channels
+            if problem is not None:
+                problems[role] = problem
+    if keep:
+        frames = [
+            frame
+            for frame in frames
+            if (key := (frame.arbitration_id, frame.is_extended_id)) not in keep
+            or recorded_channel(frame.channel, path.suffix) == keep[key]
+        ]
+    return ChannelSelection(frames, found, problems)
 
 
-def _example(named: Counter) -> str:
+def _example(channels: Mapping[str, int]) -> str:
     """The first channel, written as the signal map takes it."""
-    first = sorted((c for c in named if c is not None), key=str)[0]
+    first = next(channel for channel in channels if channel != "None")
     return first if first.isdigit() else f'"{first}"'

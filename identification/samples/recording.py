@@ -16,7 +16,7 @@ from dtid.dbc.ecu_requests import applied_test_torque
 from dtid.dbc.interface import RoleSeries, VehicleInterface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import AnalysisError
-from dtid.identification.samples.channels import frames_of_role_channels
+from dtid.identification.samples.channels import select_channels
 from dtid.identification.samples.crank_sampling import (
     SPEED_PER_REVOLUTION,
     STROKES_PER_REVOLUTION,
@@ -54,6 +54,12 @@ class Recording:
     integrity
         What of the file could not be read (cut short, damaged parts skipped); a live
         session's is intact.
+    channels
+        Per role whose message the file holds with its bus channel: frames per channel, as the
+        file names the channels (:mod:`dtid.identification.samples.channels`); empty live.
+    channel_problems
+        Per role: why its frames cannot be read as one series (a message on several channels
+        and none named in the signal map, or not on the one named); :meth:`test_data` refuses.
     """
 
     path: Path
@@ -63,6 +69,8 @@ class Recording:
     missing_roles: tuple[str, ...]
     request_timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
     integrity: Integrity = dataclasses.field(default_factory=Integrity)
+    channels: Mapping[str, Mapping[str, int]] = dataclasses.field(default_factory=dict)
+    channel_problems: Mapping[str, str] = dataclasses.field(default_factory=dict)
 
     def series(self, role: str) -> Series:
         """The role's samples as a :class:`dtid.identification.samples.testdata.Series`."""
@@ -89,6 +97,9 @@ class Recording:
                 f"{self.path}: no {', '.join(missing)} frames found (check that the signal map "
                 "names the messages this recording carries; `dtid inspect` lists what it holds)"
             )
+        mixed = [p for r, p in self.channel_problems.items() if r in (*CRANK_ROLES, "test_torque")]
+        if mixed:
+            raise AnalysisError(mixed[0])
         if warn:
             self.warn_pauses()
         request = self.roles.get("torque_request")
@@ -315,13 +326,19 @@ def load_recording(path: str | os.PathLike[str], interface: VehicleInterface) ->
     """
     path = Path(path)
     frames, integrity = read_log_checked(path)
+    selection = select_channels(frames, interface, path)
     recording = recording_from_series(
         path,
-        interface.decode(frames_of_role_channels(frames, interface, path)),
+        interface.decode(selection.frames),
         frames[0].timestamp,
         len(frames),
         frames[-1].timestamp,
         interface.missing_roles(),
         request_timeout(interface),
     )
-    return dataclasses.replace(recording, integrity=integrity)
+    return dataclasses.replace(
+        recording,
+        integrity=integrity,
+        channels=selection.found,
+        channel_problems=selection.problems,
+    )
