@@ -4,6 +4,7 @@ import difflib
 import functools
 import logging
 import os
+from collections import Counter
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -63,6 +64,9 @@ class _BoundRole:
     message: Message
     extra_signals: Mapping[str, Signal]
     product_checksum: bool
+    named_values: Mapping[float, str]
+    """Decoded values of the value signal that the DBC names (``VAL_``: "Invalid", "Fault",
+    ...), which are not measurements; empty for the heartbeat, whose states are its values."""
 
     @property
     def signal_names(self) -> tuple[str, ...]:
@@ -188,7 +192,16 @@ class VehicleInterface:
                 signals["checksum"].name,
                 message.name,
             )
-        return _BoundRole(spec, message, MappingProxyType(signals), product_checksum)
+        value = message.get_signal_by_name(spec.signal)
+        named = {}
+        if spec.canonical_unit is not None and value.choices:
+            named = {
+                float(value.conversion.raw_to_scaled(raw, decode_choices=False)): str(label)
+                for raw, label in value.choices.items()
+            }
+        return _BoundRole(
+            spec, message, MappingProxyType(signals), product_checksum, MappingProxyType(named)
+        )
 
     def _missing_signal(self, where: str, key: str, name: str, message: Message) -> str:
         text = (
@@ -236,7 +249,9 @@ class VehicleInterface:
 
         Only data frames whose arbitration ID and ID type (standard or extended) belong to a
         mapped message are decoded. A frame whose length differs from the DBC's or that cantools
-        cannot decode is skipped and counted in :attr:`RoleSeries.n_bad` (and logged).
+        cannot decode is skipped and counted in :attr:`RoleSeries.n_bad` (and logged). A value
+        of a measured role's signal that the DBC names (``VAL_``: "Invalid", "Fault", "Init")
+        says that the ECU had no measurement: that frame is left out of the role (and logged).
 
         Parameters
         ----------
@@ -275,6 +290,8 @@ class VehicleInterface:
         verified: list[list[bool]] = [[] for _ in roles]
         undecodable = 0
         absent = [0] * len(roles)
+        named = [role.named_values for role in roles]
+        not_measured: list[Counter[str]] = [Counter() for _ in roles]
         for frame in frames:
             data = frame.data
             if len(data) != length:
@@ -287,13 +304,28 @@ class VehicleInterface:
                 continue
             for index, signal_names in enumerate(names):
                 try:
-                    rows[index].append(tuple([decoded[name] for name in signal_names]))
+                    row = tuple([decoded[name] for name in signal_names])
                 except KeyError:  # a multiplexed signal that this frame does not carry
                     absent[index] += 1
                     continue
+                if named[index] and row[0] in named[index]:  # "Invalid", not a measurement
+                    not_measured[index][named[index][row[0]]] += 1
+                    continue
+                rows[index].append(row)
                 times[index].append(frame.timestamp)
                 if checked[index]:
                     verified[index].append(verify_checksum(data))
+        for role, counts in zip(roles, not_measured, strict=True):
+            if counts:
+                logger.warning(
+                    "role '%s': left out %s of %d frames of message '%s' (0x%X): values its "
+                    "DBC names, not measurements",
+                    role.spec.role,
+                    ", ".join(f"{n} {label!r}" for label, n in counts.items()),
+                    len(frames),
+                    message.name,
+                    message.frame_id,
+                )
         return [
             self._series(
                 role,
