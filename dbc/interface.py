@@ -65,8 +65,8 @@ class _BoundRole:
     extra_signals: Mapping[str, Signal]
     product_checksum: bool
     named_values: Mapping[float, str]
-    """Decoded values of the value signal that the DBC names (``VAL_``: "Invalid", "Fault",
-    ...), which are not measurements; empty for the heartbeat, whose states are its values."""
+    """Decoded values of the value signal that say the ECU had no measurement, with the names
+    the DBC gives them (:func:`_not_measurements`)."""
 
     @property
     def signal_names(self) -> tuple[str, ...]:
@@ -111,6 +111,26 @@ def _default_value(signal: Signal) -> float:
     if signal.maximum is not None:
         value = min(value, signal.maximum)
     return value
+
+
+def _not_measurements(signal: Signal, spec: "RoleSpec") -> dict[float, str]:
+    """The decoded values of a measured role's signal that say the ECU had no measurement, with
+    their names: the values the DBC names (``VAL_``) outside the signal's declared range, as a
+    production DBC codes "Invalid", "Fault" or "Init" (Ford's engine speed: range 0-16383.5 rpm,
+    65535 "Invalid" = 16383.75 rpm). A named value inside the range (0 "Stopped") is a value;
+    without a declared range (``[0|0]``) none is judged. Empty for the heartbeat, whose states
+    are its values."""
+    low, high = signal.minimum, signal.maximum
+    if spec.canonical_unit is None or not signal.choices or low is None or high is None:
+        return {}
+    if high <= low:
+        return {}
+    named = {}
+    for raw, label in signal.choices.items():
+        value = float(signal.conversion.raw_to_scaled(raw, decode_choices=False))
+        if not low <= value <= high:
+            named[value] = str(label)
+    return named
 
 
 def _raw(values: list[float], signal: Signal) -> np.ndarray:
@@ -192,15 +212,12 @@ class VehicleInterface:
                 signals["checksum"].name,
                 message.name,
             )
-        value = message.get_signal_by_name(spec.signal)
-        named = {}
-        if spec.canonical_unit is not None and value.choices:
-            named = {
-                float(value.conversion.raw_to_scaled(raw, decode_choices=False)): str(label)
-                for raw, label in value.choices.items()
-            }
         return _BoundRole(
-            spec, message, MappingProxyType(signals), product_checksum, MappingProxyType(named)
+            spec,
+            message,
+            MappingProxyType(signals),
+            product_checksum,
+            MappingProxyType(_not_measurements(message.get_signal_by_name(spec.signal), spec)),
         )
 
     def _missing_signal(self, where: str, key: str, name: str, message: Message) -> str:
@@ -250,8 +267,9 @@ class VehicleInterface:
         Only data frames whose arbitration ID and ID type (standard or extended) belong to a
         mapped message are decoded. A frame whose length differs from the DBC's or that cantools
         cannot decode is skipped and counted in :attr:`RoleSeries.n_bad` (and logged). A value
-        of a measured role's signal that the DBC names (``VAL_``: "Invalid", "Fault", "Init")
-        says that the ECU had no measurement: that frame is left out of the role (and logged).
+        of a measured role's signal that the DBC names outside the signal's range (``VAL_``:
+        "Invalid", "Fault", "Init") says that the ECU had no measurement: that frame is left out
+        of the role (and logged).
 
         Parameters
         ----------

@@ -222,25 +222,27 @@ def test_decode_counts_bad_frames_and_ignores_other_frames(interface, caplog):
 
 
 def test_values_the_dbc_names_are_not_measurements(tmp_path, caplog):
-    """A production DBC names the raw values that say "no measurement" (Ford's engine speed:
-    65535 "Invalid", 16383.75 rpm decoded); decoded as numbers they would be engine speeds. They
-    are left out with a warning; the heartbeat's named values are its states and stay."""
+    """A production DBC names the raw values that say "no measurement", outside the signal's
+    range (Ford's engine speed: range 0-16383.5 rpm, 65535 "Invalid" decoded 16383.75 rpm);
+    decoded as numbers they would be engine speeds. They are left out with a warning; a named
+    value inside the range (0 "Stopped") and the heartbeat's states stay."""
     dbc = tmp_path / "named.dbc"
     dbc.write_text(
-        'BO_ 416 Speed: 8 ECU\n SG_ N : 0|16@1+ (0.25,0) [0|16383.75] "rpm" TOOL\n'
+        'BO_ 416 Speed: 8 ECU\n SG_ N : 0|16@1+ (0.25,0) [0|16383.25] "rpm" TOOL\n'
         ' SG_ State : 16|8@1+ (1,0) [0|255] "" TOOL\n\n'
-        'VAL_ 416 N 65535 "Invalid" 65534 "Init" ;\nVAL_ 416 State 0 "idle" 2 "chirp" ;\n'
+        'VAL_ 416 N 65535 "Invalid" 65534 "Init" 0 "Stopped" ;\n'
+        'VAL_ 416 State 0 "idle" 2 "chirp" ;\n'
     )
     text = '[speed]\nmessage = "Speed"\nsignal = "N"\n'
     text += '[heartbeat]\nmessage = "Speed"\nsignal = "State"\n'
     interface = load_signal_map(write_map(tmp_path, text)).bind(load_database(dbc), dbc)
-    values = [16383.75, 800.0, 16383.5, 801.0, 16383.75, 802.0]
+    values = [16383.75, 800.0, 16383.5, 801.0, 16383.75, 0.0]
     frames = [interface.encode("speed", v, 0.015 * k) for k, v in enumerate(values)]
     for frame in frames:
         frame.data[2] = 2  # State "chirp"
     with caplog.at_level(logging.WARNING):
         series = interface.decode(frames)
-    np.testing.assert_array_equal(series["speed"].values, [800.0, 801.0, 802.0])
+    np.testing.assert_array_equal(series["speed"].values, [800.0, 801.0, 0.0])
     np.testing.assert_allclose(series["speed"].timestamps, [0.015, 0.045, 0.075])
     assert series["speed"].n_bad == 0
     assert "left out 2 'Invalid', 1 'Init' of 6 frames of message 'Speed'" in caplog.text
