@@ -73,6 +73,15 @@ class _BoundRole:
         """The value signal, then the extra signals."""
         return (self.spec.signal, *(signal.name for signal in self.extra_signals.values()))
 
+    @property
+    def validity(self) -> tuple[int, Signal, frozenset[int]] | None:
+        """Where the validity flag is in a decoded row (:attr:`signal_names`), its signal and
+        the raw values that mean a measurement; None without a flag."""
+        if "valid" not in self.extra_signals:
+            return None
+        position = 1 + list(self.extra_signals).index("valid")
+        return position, self.extra_signals["valid"], frozenset(self.spec.valid_values)
+
 
 @functools.cache
 def _product_database() -> Database:
@@ -268,8 +277,9 @@ class VehicleInterface:
         mapped message are decoded. A frame whose length differs from the DBC's or that cantools
         cannot decode is skipped and counted in :attr:`RoleSeries.n_bad` (and logged). A value
         of a measured role's signal that the DBC names outside the signal's range (``VAL_``:
-        "Invalid", "Fault", "Init") says that the ECU had no measurement: that frame is left out
-        of the role (and logged).
+        "Invalid", "Fault", "Init"), or a validity flag (the map's ``valid``) not among the
+        map's ``valid_values``, says that the ECU had no measurement: that frame is left out of
+        the role (and logged).
 
         Parameters
         ----------
@@ -309,6 +319,7 @@ class VehicleInterface:
         undecodable = 0
         absent = [0] * len(roles)
         named = [role.named_values for role in roles]
+        validity = [role.validity for role in roles]
         not_measured: list[Counter[str]] = [Counter() for _ in roles]
         for frame in frames:
             data = frame.data
@@ -327,8 +338,14 @@ class VehicleInterface:
                     absent[index] += 1
                     continue
                 if named[index] and row[0] in named[index]:  # "Invalid", not a measurement
-                    not_measured[index][named[index][row[0]]] += 1
+                    not_measured[index][repr(named[index][row[0]])] += 1
                     continue
+                if validity[index] is not None:  # the ECU's own flag
+                    position, flag, valid = validity[index]
+                    raw = round((row[position] - flag.offset) / flag.scale)
+                    if raw not in valid:
+                        not_measured[index][f"with {flag.name} = {raw}"] += 1
+                        continue
                 rows[index].append(row)
                 times[index].append(frame.timestamp)
                 if checked[index]:
@@ -336,10 +353,11 @@ class VehicleInterface:
         for role, counts in zip(roles, not_measured, strict=True):
             if counts:
                 logger.warning(
-                    "role '%s': left out %s of %d frames of message '%s' (0x%X): values its "
-                    "DBC names, not measurements",
+                    "role '%s': left out %s of %d frames of message '%s' (0x%X): they carry no "
+                    "measurement (a value the DBC names outside the signal's range, or the "
+                    "ECU's validity flag)",
                     role.spec.role,
-                    ", ".join(f"{n} {label!r}" for label, n in counts.items()),
+                    ", ".join(f"{n} {label}" for label, n in counts.items()),
                     len(frames),
                     message.name,
                     message.frame_id,

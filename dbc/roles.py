@@ -18,13 +18,15 @@ CANONICAL_UNITS: Mapping[str, str | None] = MappingProxyType(
     }
 )
 #: Keys naming further signals of the role's message, per role. ``counter`` is the message's
-#: rolling counter (for speed: the crank event counter, for the test torque: the alive counter).
+#: rolling counter (for speed: the crank event counter, for the test torque: the alive counter);
+#: ``valid`` the ECU's validity flag of the value (a frame whose flag is not among the map's
+#: ``valid_values`` carries no measurement).
 EXTRA_SIGNAL_KEYS: Mapping[str, tuple[str, ...]] = MappingProxyType(
     {
-        "speed": ("counter",),
-        "mean_torque": ("cylinder", "counter"),
+        "speed": ("counter", "valid"),
+        "mean_torque": ("cylinder", "counter", "valid"),
         "test_torque": ("counter", "enable", "checksum"),
-        "torque_request": ("counter",),
+        "torque_request": ("counter", "valid"),
         "heartbeat": ("counter",),
     }
 )

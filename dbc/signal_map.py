@@ -12,11 +12,12 @@ Roles and their optional keys (besides the required ``message`` and ``signal``):
 ==================  ===========  ===============================================
 role                canonical    optional keys
 ==================  ===========  ===============================================
-``speed``           rpm          ``unit``, ``scale``, ``counter``
-``mean_torque``     N*m          ``unit``, ``scale``, ``cylinder``
+``speed``           rpm          ``unit``, ``scale``, ``counter``, ``valid``, ``valid_values``
+``mean_torque``     N*m          ``unit``, ``scale``, ``cylinder``, ``counter``, ``valid``,
+                                 ``valid_values``
 ``test_torque``     N*m          ``unit``, ``scale``, ``counter``, ``enable``, ``checksum``,
                                  ``timeout_s``
-``torque_request``  N*m          ``unit``, ``scale``
+``torque_request``  N*m          ``unit``, ``scale``, ``counter``, ``valid``, ``valid_values``
 ``heartbeat``       (raw state)  none
 ==================  ===========  ===============================================
 
@@ -27,7 +28,10 @@ two buses may see a message on both (a gateway forwards it), or two buses may us
 different messages: without ``channel`` such a recording is refused, naming the channels. The
 daemon, on one bus, ignores it.
 
-``counter``, ``cylinder``, ``enable`` and ``checksum`` name further signals of the same message.
+``counter``, ``cylinder``, ``enable``, ``checksum`` and ``valid`` name further signals of the
+same message. ``valid`` is the ECU's validity flag of the value (the independent DBC's
+``EMS_EngSpdValid``): a frame whose flag's raw value is not among ``valid_values`` (``[1]``
+unless given) carries no measurement and is left out of the role.
 ``unit`` is the unit of the decoded signal after ``scale`` when it differs from the canonical one,
 and ``scale`` a factor applied after decoding (for a torque in % of a 450 N*m reference,
 ``scale = 4.5``): ``canonical = unit_convert(decoded * scale, unit)``. ``timeout_s`` is how long
@@ -97,6 +101,10 @@ class RoleSpec:
     channel : str or None
         The recording's bus channel of the message, as the recording names it
         (:func:`dtid.acquisition.logfile.recorded_channel`); None: wherever it is, on one channel.
+    valid : str or None
+        The validity flag's signal, where the map names one.
+    valid_values : tuple of int
+        Raw values of the validity flag that mean the value is a measurement ((1,) unless given).
     """
 
     role: str
@@ -110,6 +118,8 @@ class RoleSpec:
     checksum: str | None = None
     timeout_s: float = DEFAULT_REQUEST_TIMEOUT_S
     channel: str | None = None
+    valid: str | None = None
+    valid_values: tuple[int, ...] = (1,)
 
     @property
     def canonical_unit(self) -> str | None:
@@ -209,9 +219,15 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
     extra_keys = EXTRA_SIGNAL_KEYS[role]
     canonical = CANONICAL_UNITS[role]
     timeout_keys = ("timeout_s",) if role == "test_torque" else ()
+    valid_keys = ("valid_values",) if "valid" in extra_keys else ()
     allowed = (
-        _NAME_KEYS + (("unit", "scale") if canonical else ()) + extra_keys + timeout_keys
-    ) + ("channel",)
+        _NAME_KEYS
+        + (("unit", "scale") if canonical else ())
+        + extra_keys
+        + valid_keys
+        + timeout_keys
+        + ("channel",)
+    )
     for key in table:
         if key not in allowed:
             raise ConfigError(
@@ -276,12 +292,26 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
             f".blf file counts it (channel = 1) or a name as a candump log gives it (channel = "
             f'"can1"), got {_type_name(channel)} {channel!r}'
         )
+    valid_values = table.get("valid_values", [1])
+    if (
+        not isinstance(valid_values, list)
+        or not valid_values
+        or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in valid_values)
+    ):
+        raise ConfigError(
+            f"{where} key 'valid_values' must list the raw values of the validity flag that mean "
+            f"a measurement, e.g. valid_values = [1], got {_type_name(valid_values)} "
+            f"{valid_values!r}"
+        )
+    if "valid_values" in table and "valid" not in names:
+        raise ConfigError(f"{where} gives 'valid_values' without 'valid', the flag's signal")
     return RoleSpec(
         role=role,
         unit=unit,
         scale=float(scale),
         timeout_s=float(timeout),
         channel=None if channel is None else str(channel).strip(),
+        valid_values=tuple(valid_values),
         **names,
     )
 

@@ -249,6 +249,57 @@ def test_values_the_dbc_names_are_not_measurements(tmp_path, caplog):
     np.testing.assert_array_equal(series["heartbeat"].values, [2.0] * 6)
 
 
+def test_a_validity_flag_leaves_out_the_frames_it_marks(tmp_path, caplog):
+    """The map's ``valid`` names the ECU's flag of the value; a frame whose flag is not among
+    ``valid_values`` ([1] unless given) carries no measurement."""
+    dbc = tmp_path / "flag.dbc"
+    dbc.write_text(
+        'BO_ 416 Speed: 8 ECU\n SG_ N : 0|16@1+ (0.25,0) [0|16383.75] "rpm" TOOL\n'
+        ' SG_ Valid : 16|2@1+ (1,0) [0|3] "" TOOL\n'
+    )
+    frames = [
+        can.Message(
+            timestamp=0.015 * k,
+            arbitration_id=416,
+            is_extended_id=False,
+            data=bytes([int(4 * (800 + k)) & 0xFF, int(4 * (800 + k)) >> 8, flag, 0, 0, 0, 0, 0]),
+        )
+        for k, flag in enumerate([0, 1, 1, 2, 1, 0])
+    ]
+    speed = '[speed]\nmessage = "Speed"\nsignal = "N"\nvalid = "Valid"\n'
+    for extra, kept in (("", [801, 802, 804]), ("valid_values = [1, 2]\n", [801, 802, 803, 804])):
+        signal_map = load_signal_map(write_map(tmp_path, speed + extra))
+        with caplog.at_level(logging.WARNING):
+            series = signal_map.bind(load_database(dbc), dbc).decode(frames)["speed"]
+        np.testing.assert_array_equal(series.values, kept)
+    assert "left out 2 with Valid = 0, 1 with Valid = 2 of 6 frames" in caplog.text
+    for text, match in (
+        ('[speed]\nmessage = "A"\nsignal = "B"\nvalid_values = [1]\n', "without 'valid'"),
+        (speed + "valid_values = 1\n", "must list the raw values"),
+        (speed + "valid_values = [-1]\n", "must list the raw values"),
+        ('[test_torque]\nmessage = "A"\nsignal = "B"\nvalid = "C"\n', "unknown key 'valid'"),
+    ):
+        with pytest.raises(ConfigError, match=match):
+            load_signal_map(write_map(tmp_path, text))
+
+
+def test_the_independent_speed_flag_reads_every_frame_valid(tmp_path):
+    """The independent recordings' EMS_EngSpdValid is 1 on every frame: read through the
+    flag, the speed is the same series."""
+    folder = Path(__file__).resolve().parents[2] / "shared" / "independent" / "vehicle_2"
+    if not folder.is_dir():
+        pytest.skip(f"independent recordings not present in {folder}")
+    from dtid.dbc.loader import load_interface
+
+    text = (folder / "signals.toml").read_text()
+    flagged = write_map(tmp_path, text.replace("[speed]", '[speed]\nvalid = "EMS_EngSpdValid"'))
+    frames = read_log(folder / "run_A5.asc")
+    plain = load_interface(folder / "oem_vehicle.dbc", folder / "signals.toml").decode(frames)
+    through = load_interface(folder / "oem_vehicle.dbc", flagged).decode(frames)
+    np.testing.assert_array_equal(through["speed"].values, plain["speed"].values)
+    assert len(plain["speed"].values) > 3000
+
+
 def test_extended_ids_are_respected(tmp_path):
     dbc = tmp_path / "extended.dbc"
     dbc.write_text(
