@@ -49,6 +49,9 @@ class RoleSeries:
     n_bad : int
         Frames of the role's message that were skipped because their length differs from the DBC
         or they could not be decoded.
+    not_measured : int
+        Frames of the role's message left out because they carry no measurement: a value the
+        DBC names outside the signal's range, or the map's validity flag not valid.
     """
 
     role: str
@@ -56,6 +59,7 @@ class RoleSeries:
     values: np.ndarray
     extra: Mapping[str, np.ndarray]
     n_bad: int
+    not_measured: int = 0
 
 
 @dataclass(frozen=True)
@@ -370,6 +374,7 @@ class VehicleInterface:
                 undecodable + absent[index],
                 len(frames),
                 verified[index] if checked[index] else None,
+                sum(not_measured[index].values()),
             )
             for index, role in enumerate(roles)
         ]
@@ -382,6 +387,7 @@ class VehicleInterface:
         n_bad: int,
         n_frames: int,
         verified: list[bool] | None,
+        not_measured: int,
     ) -> RoleSeries:
         columns = list(zip(*rows, strict=True)) if rows else [[]] * len(role.signal_names)
         values = np.asarray(columns[0], dtype=np.float64) * role.spec.gain
@@ -407,6 +413,7 @@ class VehicleInterface:
             values=values,
             extra=MappingProxyType(extra),
             n_bad=n_bad,
+            not_measured=not_measured,
         )
 
     def encode(self, role: str, value: float, timestamp: float, **signals: float) -> can.Message:

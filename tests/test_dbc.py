@@ -1,5 +1,6 @@
 """Tests of the vehicle CAN interface: product DBC, checksum, signal maps, decode and encode."""
 
+import json
 import logging
 import math
 from pathlib import Path
@@ -244,9 +245,23 @@ def test_values_the_dbc_names_are_not_measurements(tmp_path, caplog):
         series = interface.decode(frames)
     np.testing.assert_array_equal(series["speed"].values, [800.0, 801.0, 0.0])
     np.testing.assert_allclose(series["speed"].timestamps, [0.015, 0.045, 0.075])
-    assert series["speed"].n_bad == 0
+    assert series["speed"].n_bad == 0 and series["speed"].not_measured == 3
     assert "left out 2 'Invalid', 1 'Init' of 6 frames of message 'Speed'" in caplog.text
     np.testing.assert_array_equal(series["heartbeat"].values, [2.0] * 6)
+    # dtid inspect counts them beside the frames it could not decode
+    from json_schemas import validate
+
+    from dtid.acquisition.logfile import write_log
+    from dtid.cli import main
+
+    write_log(tmp_path / "named.asc", frames)
+    out, signals = tmp_path / "inspect.json", tmp_path / "map.toml"
+    argv = ["inspect", str(tmp_path / "named.asc"), "--dbc", str(dbc), "--signals", str(signals)]
+    assert main([*argv, "--json", str(out)]) == 0
+    document = json.loads(out.read_text())
+    validate(document, "inspect")
+    assert document["roles"]["speed"]["not_measured"] == 3
+    assert document["roles"]["speed"]["count"] == 3
 
 
 def test_a_validity_flag_leaves_out_the_frames_it_marks(tmp_path, caplog):
@@ -272,6 +287,7 @@ def test_a_validity_flag_leaves_out_the_frames_it_marks(tmp_path, caplog):
         with caplog.at_level(logging.WARNING):
             series = signal_map.bind(load_database(dbc), dbc).decode(frames)["speed"]
         np.testing.assert_array_equal(series.values, kept)
+        assert series.not_measured == 6 - len(kept)
     assert "left out 2 with Valid = 0, 1 with Valid = 2 of 6 frames" in caplog.text
     for text, match in (
         ('[speed]\nmessage = "A"\nsignal = "B"\nvalid_values = [1]\n', "without 'valid'"),

@@ -51,7 +51,11 @@ def role_summary(times: np.ndarray, values: np.ndarray) -> dict[str, float | int
 def report(recording: Recording) -> dict[str, object]:
     """The inspect report (docs/schemas/inspect.schema.json)."""
     roles = {
-        role: {**role_summary(series.timestamps, series.values), "bad_frames": series.n_bad}
+        role: {
+            **role_summary(series.timestamps, series.values),
+            "bad_frames": series.n_bad,
+            "not_measured": series.not_measured,
+        }
         for role, series in recording.roles.items()
     }
     runs = (
@@ -125,6 +129,11 @@ def run(args: argparse.Namespace) -> int:
             print(f"  no frame of {role}'s message in this recording: wrong DBC or signal map?")
         if s["bad_frames"]:
             print(f"  {s['bad_frames']} frames of {role} could not be decoded")
+        if s["not_measured"]:
+            print(
+                f"  {s['not_measured']} frames of {role} carry no measurement (a value the DBC "
+                "names outside the signal's range, or the validity flag): left out"
+            )
     for role in document["missing_roles"]:
         print(f"{role:<16}not in the signal map")
     problems = document["channel_problems"]

@@ -260,6 +260,7 @@ def _in_time_order(series: RoleSeries, start: float, path: Path) -> RoleSeries:
         values=series.values[order],
         extra={key: value[order] for key, value in series.extra.items()},
         n_bad=series.n_bad,
+        not_measured=series.not_measured,
     )
 
 
