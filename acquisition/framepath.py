@@ -93,7 +93,8 @@ class FramePath:
         self._decoders = message_decoders(interface)
         self._buckets: dict[int, list[can.Message]] = {key: [] for key in self._decoders}
         self._first_wall: float | None = None
-        self._last_health: tuple[int, ...] = (0, 0, 0, 0, 0)
+        self._last_health: tuple[int, ...] = (0,) * 6
+        self._first_warnings = _FirstOfEach()
         self._last_health_wall = 0.0
         self.health = Health(interface)
         self.safety: SafetyMonitor | None = None
@@ -142,11 +143,15 @@ class FramePath:
         whatever is pending.
         """
         decoded: dict[str, RoleSeries] = {}
-        for arbitration_id, bucket in self._buckets.items():
-            if bucket:
-                for decoder in self._decoders[arbitration_id]:
-                    decoded.update(decoder.decode(bucket))
-                bucket.clear()
+        interface_logger.addFilter(self._first_warnings)  # the health events count the rest
+        try:
+            for arbitration_id, bucket in self._buckets.items():
+                if bucket:
+                    for decoder in self._decoders[arbitration_id]:
+                        decoded.update(decoder.decode(bucket))
+                    bucket.clear()
+        finally:
+            interface_logger.removeFilter(self._first_warnings)
         self.health.update(decoded)
         speed = decoded.get("speed")
         if speed is not None and len(speed.timestamps):
@@ -209,6 +214,24 @@ def message_decoders(interface: VehicleInterface) -> dict[int, list[VehicleInter
     finally:
         interface_logger.removeFilter(quiet)
     return decoders
+
+
+class _FirstOfEach(logging.Filter):
+    """Passes the first of each kind of decoding warning per role in a session; the blocks come
+    four a second, and the health events count the frames of the rest (``bad_frames``,
+    ``not_measured``)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._seen: set[tuple[object, object]] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        args = record.args if isinstance(record.args, tuple) else ()
+        key = (record.msg, args[0] if args else None)
+        if key in self._seen:
+            return False
+        self._seen.add(key)
+        return True
 
 
 class _DropWarnings(logging.Filter):

@@ -107,10 +107,18 @@ class HealthCounts:
     bad_frames: int = 0
     foreign_tx: int = 0
     frames: int = 0
+    not_measured: int = 0
 
-    def anomalies(self) -> tuple[int, int, int, int, int]:
+    def anomalies(self) -> tuple[int, int, int, int, int, int]:
         """Every count but ``frames``: a change of these is worth a health event."""
-        return self.lost, self.duplicated, self.out_of_order, self.bad_frames, self.foreign_tx
+        return (
+            self.lost,
+            self.duplicated,
+            self.out_of_order,
+            self.bad_frames,
+            self.foreign_tx,
+            self.not_measured,
+        )
 
 
 class Health:
@@ -131,7 +139,8 @@ class Health:
         self._message_of = {role: spec.message for role, spec in interface.signal_map.roles.items()}
 
     def update(self, decoded: Mapping[str, RoleSeries]) -> None:
-        """Count the lost, duplicated, out-of-order and bad frames of one decoded block."""
+        """Count the lost, duplicated, out-of-order and bad frames of one decoded block, and
+        those that carry no measurement (:attr:`dtid.dbc.interface.RoleSeries.not_measured`)."""
         for role, tracker in self._trackers.items():
             series = decoded.get(role)
             if series is not None:
@@ -139,6 +148,7 @@ class Health:
         bad_by_message = {self._message_of[role]: s.n_bad for role, s in decoded.items()}
         counts = self.counts
         counts.bad_frames += sum(bad_by_message.values())
+        counts.not_measured += sum(s.not_measured for s in decoded.values())
         counts.lost = sum(t.lost for t in self._trackers.values())
         counts.duplicated = sum(t.duplicated for t in self._trackers.values())
         counts.out_of_order = sum(t.out_of_order for t in self._trackers.values())

@@ -26,7 +26,9 @@ Event kinds and their keys besides ``kind``, ``session`` and ``seq``:
 ``health``
     Cumulative counts: ``lost``, ``duplicated``, ``out_of_order`` (crank-synchronous frames, from
     their counters), ``bad_frames`` (wrong length or undecodable), ``foreign_tx`` (frames with
-    the tool's own IDs that it did not send), ``frames`` (all recorded).
+    the tool's own IDs that it did not send), ``frames`` (all recorded), ``not_measured`` (frames
+    left out that carry no measurement: a value the DBC names outside the signal's range, or the
+    map's validity flag not valid).
 ``end``
     ``status`` (``completed`` or ``aborted``), ``reason`` (why, for an abort; else null),
     ``t_s`` (bus time).

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import can
 import numpy as np
 import pytest
@@ -79,6 +81,31 @@ def test_health_sums_roles_and_bad_frames() -> None:
     )
     counts = health.counts
     assert (counts.lost, counts.duplicated, counts.out_of_order, counts.bad_frames) == (2, 1, 0, 2)
+    # frames that carry no measurement ("Invalid", a validity flag at 0) are counted apart
+    invalid = dataclasses.replace(_series("speed", [5, 6]), not_measured=3)
+    health.update({"speed": invalid})
+    assert (counts.not_measured, counts.bad_frames, counts.lost) == (3, 2, 2)
+    assert counts.anomalies()[-1] == 3
+
+
+def test_the_daemon_warns_once_a_session_of_each_kind_of_bad_block(caplog) -> None:
+    """The daemon decodes four blocks a second: a frame of the wrong length in each would log
+    four warnings a second. The first of each kind and role is logged; the health events count
+    the rest."""
+    from dtid.acquisition.framepath import _FirstOfEach, message_decoders
+    from dtid.dbc.interface import logger as interface_logger
+
+    (decoder,) = message_decoders(INTERFACE)[INTERFACE.frame_key("speed")[0]]
+    short = can.Message(arbitration_id=0x1A0, is_extended_id=False, data=bytes(7))
+    once = _FirstOfEach()
+    interface_logger.addFilter(once)
+    try:
+        with caplog.at_level("WARNING"):
+            for _ in range(5):
+                assert decoder.decode([short])["speed"].n_bad == 1
+    finally:
+        interface_logger.removeFilter(once)
+    assert caplog.text.count("skipped 1 of 1 frames of message 'EngineSpeed'") == 1
 
 
 def _request(counter: int, value: float = 0.0) -> can.Message:

@@ -161,6 +161,7 @@ def render(state: MonitorState, width: int = 100) -> list[str]:
             f"frames {health.get('frames', 0)} | lost {health.get('lost', 0)} | duplicated "
             f"{health.get('duplicated', 0)} | out of order {health.get('out_of_order', 0)} | "
             f"bad {health.get('bad_frames', 0)} | foreign tx {health.get('foreign_tx', 0)}"
+            + (f" | no measurement {health['not_measured']}" if health.get("not_measured") else "")
         )
     lines.append("")
     lines += _frf_plot(state.frfs, state.building, width)
