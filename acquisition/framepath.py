@@ -20,8 +20,10 @@ out before any other, right after the first frame is written to the log. All eve
 from __future__ import annotations
 
 import logging
+import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import asdict, replace
 from types import MappingProxyType
 from typing import Any
@@ -143,15 +145,12 @@ class FramePath:
         whatever is pending.
         """
         decoded: dict[str, RoleSeries] = {}
-        interface_logger.addFilter(self._first_warnings)  # the health events count the rest
-        try:
+        with self._first_warnings.on(interface_logger):  # the health events count the rest
             for arbitration_id, bucket in self._buckets.items():
                 if bucket:
                     for decoder in self._decoders[arbitration_id]:
                         decoded.update(decoder.decode(bucket))
                     bucket.clear()
-        finally:
-            interface_logger.removeFilter(self._first_warnings)
         self.health.update(decoded)
         speed = decoded.get("speed")
         if speed is not None and len(speed.timestamps):
@@ -219,13 +218,31 @@ def message_decoders(interface: VehicleInterface) -> dict[int, list[VehicleInter
 class _FirstOfEach(logging.Filter):
     """Passes the first of each kind of decoding warning per role in a session; the blocks come
     four a second, and the health events count the frames of the rest (``bad_frames``,
-    ``not_measured``)."""
+    ``not_measured``).
+
+    It sits on the interface's module logger only while a block decodes (:meth:`on`), and judges
+    only the records of the thread decoding it: another thread's pass untouched.
+    """
 
     def __init__(self) -> None:
         super().__init__()
         self._seen: set[tuple[object, object]] = set()
+        self._thread: int | None = None
+
+    @contextmanager
+    def on(self, logger: logging.Logger) -> Iterator[None]:
+        """Filter ``logger``'s records of the calling thread for the ``with`` block."""
+        self._thread = threading.get_ident()
+        logger.addFilter(self)
+        try:
+            yield
+        finally:
+            logger.removeFilter(self)
+            self._thread = None
 
     def filter(self, record: logging.LogRecord) -> bool:
+        if record.thread != self._thread:
+            return True
         args = record.args if isinstance(record.args, tuple) else ()
         key = (record.msg, args[0] if args else None)
         if key in self._seen:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import threading
 
 import can
 import numpy as np
@@ -88,24 +89,47 @@ def test_health_sums_roles_and_bad_frames() -> None:
     assert counts.anomalies()[-1] == 3
 
 
-def test_the_daemon_warns_once_a_session_of_each_kind_of_bad_block(caplog) -> None:
+def test_the_daemon_warns_once_a_session_of_each_kind_of_bad_block(tmp_path, caplog) -> None:
     """The daemon decodes four blocks a second: a frame of the wrong length in each would log
     four warnings a second. The first of each kind and role is logged; the health events count
-    the rest."""
-    from dtid.acquisition.framepath import _FirstOfEach, message_decoders
+    the rest. Another thread's warnings meanwhile pass untouched."""
+    from dtid.acquisition.clock import BusClock
+    from dtid.acquisition.framepath import FramePath
+    from dtid.acquisition.recorder import Recorder
     from dtid.dbc.interface import logger as interface_logger
 
-    (decoder,) = message_decoders(INTERFACE)[INTERFACE.frame_key("speed")[0]]
-    short = can.Message(arbitration_id=0x1A0, is_extended_id=False, data=bytes(7))
-    once = _FirstOfEach()
-    interface_logger.addFilter(once)
-    try:
-        with caplog.at_level("WARNING"):
-            for _ in range(5):
-                assert decoder.decode([short])["speed"].n_bad == 1
-    finally:
-        interface_logger.removeFilter(once)
+    class Server:
+        count = 0
+
+        def publish(self, kind: str, fields: dict) -> dict:
+            self.count += 1
+            return {"kind": kind, **fields}
+
+    recorder = Recorder(tmp_path / "s.blf", 0.0, flush_period_s=0.05)
+    tool = [INTERFACE.frame_key("test_torque"), INTERFACE.frame_key("heartbeat")]
+    path = FramePath(INTERFACE, BusClock(), recorder, Server(), EchoFilter(tool), {"plan": {}})
+    speed_id = INTERFACE.frame_key("speed")[0]
+    with caplog.at_level("WARNING"):
+        for block in range(5):
+            path.take(
+                can.Message(
+                    timestamp=0.25 * block,
+                    arbitration_id=speed_id,
+                    is_extended_id=False,
+                    data=bytes(7),  # one byte short
+                )
+            )
+            path.publish_block()
+        with path._first_warnings.on(interface_logger):
+            for _ in range(2):
+                interface_logger.warning("x %s", "y")  # the decoding thread's: once
+                worker = threading.Thread(target=interface_logger.warning, args=("x %s", "y"))
+                worker.start()
+                worker.join()
+    recorder.close()
     assert caplog.text.count("skipped 1 of 1 frames of message 'EngineSpeed'") == 1
+    assert path.health.counts.bad_frames == 5
+    assert caplog.text.count("x y") == 1 + 2  # another thread's each time
 
 
 def _request(counter: int, value: float = 0.0) -> can.Message:
