@@ -46,6 +46,8 @@ from dtid.jsonfile import write_json
 
 TABLE = "fleet.csv"
 """The results table's file name in the output folder."""
+SCHEDULER_TIMEOUT_S = 10.0
+"""How long a given Dask scheduler is tried before it is named unreachable, s."""
 
 
 @dataclass(frozen=True)
@@ -327,7 +329,7 @@ def run_batch(
             )
             client = Client(cluster)
         else:
-            client = Client(scheduler, timeout="10s")
+            client = Client(scheduler, timeout=f"{SCHEDULER_TIMEOUT_S}s")
     except (OSError, TimeoutError) as error:
         if cluster is not None:
             cluster.close()

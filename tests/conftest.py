@@ -65,7 +65,7 @@ class CommandOutputs:
 
 @pytest.fixture(scope="session")
 def command_outputs(tmp_path_factory: pytest.TempPathFactory) -> CommandOutputs:
-    """`dtid simulate`, `inspect`, `frf`, `identify` (c12, d12, eps12 free, a small search
+    """`dtid simulate`, `inspect`, `frf`, `identify` (c12 and eps12 free, a small search
     budget, three profile points) and `diagnose` (of that identification) on a 20 s chirp test,
     run once: their consumers check contracts and the report's text, not accuracy."""
     from dtid.cli import main
@@ -89,6 +89,7 @@ def command_outputs(tmp_path_factory: pytest.TempPathFactory) -> CommandOutputs:
             "3",
             "--fix",
             *HELD,
+            "d12=1.0",
         ],
         "diagnosis": [
             "diagnose",

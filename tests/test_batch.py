@@ -158,7 +158,12 @@ def test_an_existing_scheduler_serves(fleet: dict, tmp_path: Path) -> None:
     assert float(row["c12"]) == pytest.approx(float(local["c12"]), rel=1e-9)
 
 
-def test_an_unreachable_scheduler_is_named(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+def test_an_unreachable_scheduler_is_named(
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import dtid.batch
+
+    monkeypatch.setattr(dtid.batch, "SCHEDULER_TIMEOUT_S", 1.0)  # the product tries for 10 s
     recording = tmp_path / "van" / "t.blf"
     recording.parent.mkdir()
     assert main(["simulate", str(recording), "--duration", "20"]) == 0

@@ -361,15 +361,24 @@ def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFix
     assert (tmp_path / "plan.png").stat().st_size > 20_000
     assert isinstance(plan_from_file(out), TestPlan)  # the daemon and simulate read it
     assert main(["plan", "--target", "c12=abc"]) == 2
-    assert main(["plan", "--max-amplitude", "2"]) == 2
     assert main(["plan", "--spread", "100"]) == 2
     assert main(["plan", "--spread", "recorded"]) == 2  # needs --after's recordings
     assert "error:" in capsys.readouterr().err
 
 
 def test_a_bad_request_is_refused_in_one_line(
-    tmp_path: Path, capsys: pytest.CaptureFixture
+    tmp_path: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    from dtid.identification.planning import design
+
+    def simulated(*args: object, **kwargs: object) -> None:
+        raise AssertionError("simulated before the request was checked")
+
+    monkeypatch.setattr(design, "measure_information", simulated)
+    assert main(["plan", "--max-amplitude", "2"]) == 2  # refused before any simulation
+    assert "2 N*m: the validation chirp's amplitude" in capsys.readouterr().err
+    assert main(["plan", "--max-amplitude", "15", "--validation", "12"]) == 2
+    assert "2 N*m: below the validation chirp's" in capsys.readouterr().err
     assert main(["plan", "--target", "stiffness=5"]) == 2
     assert "NAME one of J1" in capsys.readouterr().err
     (tmp_path / "other.json").write_text('{"runs": []}')

@@ -407,6 +407,50 @@ class Recommendation:
         return {n: max(p[n] for p in self.per_vehicle) for n in PRECISION_NAMES}
 
 
+VALIDATION_REASON = "the validation chirp's amplitude (it must not identify)"
+"""Why the validation amplitude is no candidate (:func:`request_exclusion`)."""
+
+
+def request_exclusion(
+    amplitude_nm: float,
+    max_amplitude_nm: float,
+    validation_nm: float,
+    held_out_nm: Sequence[float] = (),
+) -> str:
+    """Why an amplitude may not identify by the request alone, before anything is simulated.
+
+    Parameters
+    ----------
+    amplitude_nm
+        The candidate amplitude, N*m.
+    max_amplitude_nm, validation_nm, held_out_nm
+        As :func:`recommend`'s, N*m.
+
+    Returns
+    -------
+    str
+        The reason, or ``""`` when the request allows it.
+    """
+    a = amplitude_nm
+    if a > max_amplitude_nm * (1 + 1e-9):
+        return f"above the amplitude cap of {max_amplitude_nm:g} N*m"
+    if validation_nm and abs(a - validation_nm) <= AMPLITUDE_MATCH * validation_nm:
+        return VALIDATION_REASON
+    if validation_nm and a < validation_nm:
+        return "below the validation chirp's (the two largest amplitudes identify)"
+    if any(abs(a - h) <= AMPLITUDE_MATCH * h for h in held_out_nm):
+        return "the recorded tests' validation amplitude (it must stay held out)"
+    return ""
+
+
+def _too_few_amplitudes(excluded: Mapping[float, str]) -> ConfigError:
+    return ConfigError(
+        "fewer than two amplitudes are allowed ("
+        + "; ".join(f"{a:g} N*m: {why}" for a, why in excluded.items())
+        + "); two identify a stiffness and its free play (eq. 23): raise --max-amplitude"
+    )
+
+
 def recommend(
     info: PlanInformation,
     targets: Mapping[str, float],
@@ -460,19 +504,13 @@ def recommend(
         a = level.amplitude_nm
         excursion = max(vehicle.levels[k].speed_excursion_rpm for vehicle in vehicles)
         refused = next((v.levels[k].unusable for v in vehicles if v.levels[k].unusable), "")
-        if a > max_amplitude_nm * (1 + 1e-9):
-            excluded[a] = f"above the amplitude cap of {max_amplitude_nm:g} N*m"
-        elif validation_nm and abs(a - validation_nm) <= AMPLITUDE_MATCH * validation_nm:
-            excluded[a] = "the validation chirp's amplitude (it must not identify)" + (
-                f"; at {where} its chirp gave no FRF, so the test may have nothing to validate "
-                f"on: {refused}"
-                if refused
-                else ""
-            )
-        elif validation_nm and a < validation_nm:
-            excluded[a] = "below the validation chirp's (the two largest amplitudes identify)"
-        elif any(abs(a - h) <= AMPLITUDE_MATCH * h for h in held_out_nm):
-            excluded[a] = "the recorded tests' validation amplitude (it must stay held out)"
+        if why := request_exclusion(a, max_amplitude_nm, validation_nm, held_out_nm):
+            excluded[a] = why
+            if why == VALIDATION_REASON and refused:
+                excluded[a] += (
+                    f"; at {where} its chirp gave no FRF, so the test may have nothing to "
+                    f"validate on: {refused}"
+                )
         elif refused:
             excluded[a] = f"its chirp gave no FRF at {where}: {refused}"
         elif excursion > speed_window_rpm:
@@ -483,11 +521,7 @@ def recommend(
         else:
             allowed.append(k)
     if len(allowed) < 2:
-        raise ConfigError(
-            "fewer than two amplitudes are allowed ("
-            + "; ".join(f"{a:g} N*m: {why}" for a, why in excluded.items())
-            + "); two identify a stiffness and its free play (eq. 23): raise --max-amplitude"
-        )
+        raise _too_few_amplitudes(excluded)
     names = [n for n in PRECISION_NAMES if n in targets]
     index = [PRECISION_NAMES.index(n) for n in names]
     needed = np.array([targets[n] / 100.0 / SIGMAS for n in names])
@@ -684,6 +718,11 @@ def plan_test(
     for extra in [validation_nm, *(a for d in recorded for a in d.amplitudes_nm)]:
         if extra and all(abs(a - extra) > AMPLITUDE_MATCH * extra for a in amplitudes):
             amplitudes.append(extra)
+    excluded = {
+        a: why for a in amplitudes if (why := request_exclusion(a, cap, validation_nm, held_out_nm))
+    }
+    if len(amplitudes) - len(excluded) < 2:  # refused before a minute of simulations
+        raise _too_few_amplitudes(excluded)
     centre, notes = planning_prior(prior)
     info = measure_information(centre, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
     correlation = None
