@@ -404,6 +404,38 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
     assert status.value.code == 2 and "must be a number > 0" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("command", "why"),
+    [
+        (["identify", "REC", "--json", "missing/result.json"], "the folder missing does not exist"),
+        (["identify", "REC", "--plot", "."], ". is a folder"),
+        (["diagnose", "REC", "--plot", "missing/map.png"], "the folder missing does not exist"),
+        (["diagnose", "REC", "--mechanisms", "belt_slip"], "invalid choice: 'belt_slip'"),
+        (["frf", "REC", "--json", "missing/frf.json"], "the folder missing does not exist"),
+        (["inspect", "REC", "--json", "missing/inspect.json"], "the folder missing does not exist"),
+        (["profile", "REC", "--json", "missing/p.json"], "the folder missing does not exist"),
+        (["plan", "--plot", "missing/plan.png"], "the folder missing does not exist"),
+        (["report", "REC", "-o", "missing/report.html"], "the folder missing does not exist"),
+    ],
+)
+def test_an_output_nowhere_to_write_is_refused_before_the_work(
+    command: list[str],
+    why: str,
+    recording: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A result file in a folder that does not exist, or a folder for a file, or a mechanism
+    the library lacks, is named when the command is read: `dtid identify --json results/v1.json`
+    without results/ wrote nothing after its minutes of search before."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as status:
+        main([str(recording) if word == "REC" else word for word in command])
+    assert status.value.code == 2 and why in capsys.readouterr().err
+    assert not (tmp_path / "missing").exists()
+
+
 def test_profile_needs_a_setup_or_recordings(
     recording: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

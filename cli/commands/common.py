@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -97,6 +98,25 @@ def positive_float(text: str) -> float:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text} must be a number > 0")
     return value
+
+
+def output_file(text: str) -> Path:
+    """argparse type: a file the command writes when its work is done.
+
+    Its folder must exist and take files, so that a mistyped or missing folder is named before
+    minutes of identification, not after them (the result was then lost).
+    """
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a folder: give a file name in it")
+    folder = path.parent
+    if not folder.is_dir():
+        raise argparse.ArgumentTypeError(
+            f"cannot write {text}: the folder {folder} does not exist (create it first)"
+        )
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise argparse.ArgumentTypeError(f"cannot write {text}: the folder {folder} is read-only")
+    return path
 
 
 def read_identification(path: Path, option: str = "--identification") -> dict:

@@ -21,6 +21,7 @@ from dtid.cli.commands.common import (
     ProgressBar,
     add_interface_options,
     add_vehicle_option,
+    output_file,
     read_identification,
     vehicle_data,
 )
@@ -71,11 +72,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--mechanisms",
         nargs="*",
+        choices=list(BY_NAME),
         metavar="NAME",
         help=f"mechanisms to consider (default: all of {', '.join(BY_NAME)}; none: locate only)",
     )
-    parser.add_argument("--json", type=Path, help="write the diagnosis as JSON")
-    parser.add_argument("--plot", type=Path, help="plot the mismatch map and the FRFs")
+    parser.add_argument("--json", type=output_file, help="write the diagnosis as JSON")
+    parser.add_argument("--plot", type=output_file, help="plot the mismatch map and the FRFs")
     add_interface_options(parser)
     parser.set_defaults(run=run)
 

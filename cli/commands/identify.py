@@ -20,6 +20,7 @@ from dtid.cli.commands.common import (
     ProgressBar,
     add_interface_options,
     add_vehicle_option,
+    output_file,
     positive_float,
     vehicle_data,
 )
@@ -51,8 +52,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_bounds_options(parser)
     add_vehicle_option(parser)
     add_search_options(parser)
-    parser.add_argument("--json", type=Path, help="write the result as JSON")
-    parser.add_argument("--plot", type=Path, help="overlay measured and identified FRFs (Fig. 6)")
+    parser.add_argument("--json", type=output_file, help="write the result as JSON")
+    parser.add_argument(
+        "--plot", type=output_file, help="overlay measured and identified FRFs (Fig. 6)"
+    )
     add_interface_options(parser)
     parser.set_defaults(run=run)
 

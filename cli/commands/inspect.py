@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from dtid.acquisition.metadata import interface_differences, read_metadata
-from dtid.cli.commands.common import add_interface_options
+from dtid.cli.commands.common import add_interface_options, output_file
 from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.loader import load_interface
 from dtid.identification.frf.runs import find_runs
@@ -28,7 +28,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "recording", type=Path, help="CAN recording (.blf, .asc, .log, .mf4, .trc or .csv)"
     )
-    parser.add_argument("--json", type=Path, help="also write the report as JSON")
+    parser.add_argument("--json", type=output_file, help="also write the report as JSON")
     add_interface_options(parser)
     parser.set_defaults(run=run)
 

@@ -14,6 +14,7 @@ from dtid.acquisition.config import load_config
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
+    output_file,
     positive_float,
     read_identification,
     vehicle_data,
@@ -149,8 +150,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="N",
         help=f"vehicles drawn around the prior with --spread (default: {DEFAULT_VEHICLES})",
     )
-    parser.add_argument("--json", type=Path, help="write the plan as JSON ([test] plan = FILE)")
-    parser.add_argument("--plot", type=Path, help="plot precision against test time")
+    parser.add_argument(
+        "--json", type=output_file, help="write the plan as JSON ([test] plan = FILE)"
+    )
+    parser.add_argument("--plot", type=output_file, help="plot precision against test time")
     add_interface_options(parser)
     add_vehicle_option(parser)
     parser.set_defaults(run=run)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from dtid.cli.commands.common import add_interface_options
+from dtid.cli.commands.common import add_interface_options, output_file
 from dtid.dbc.loader import load_interface
 from dtid.identification.html_report import REPORT_FILE, gather, write_report
 
@@ -33,7 +33,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "-o",
         "--output",
-        type=Path,
+        type=output_file,
         help=f"the HTML file (default: {REPORT_FILE} in the session directory, or beside the "
         "first recording)",
     )
