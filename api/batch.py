@@ -320,7 +320,13 @@ def run_batch(
             "dtid batch needs Dask: pip install 'drivetrain-id[fleet]' (dask[distributed])"
         ) from None
     out = Path(out)
-    (out / "tests").mkdir(parents=True, exist_ok=True)
+    try:
+        (out / "tests").mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ConfigError(
+            f"cannot make the output folder {out}/tests: {error.strerror or error} (--out names a "
+            "folder)"
+        ) from None
     cluster = None
     try:
         if scheduler is None:

@@ -416,6 +416,7 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
         (["profile", "REC", "--json", "missing/p.json"], "the folder missing does not exist"),
         (["plan", "--plot", "missing/plan.png"], "the folder missing does not exist"),
         (["report", "REC", "-o", "missing/report.html"], "the folder missing does not exist"),
+        (["simulate", "missing/test.blf"], "the folder missing does not exist"),
     ],
 )
 def test_an_output_nowhere_to_write_is_refused_before_the_work(
