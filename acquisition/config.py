@@ -350,7 +350,7 @@ def load_config(path: str | os.PathLike[str] | None) -> AcquisitionConfig:
         document = tomllib.loads(path.read_text())
     except OSError as error:
         raise ConfigError(f"cannot read configuration {path}: {error.strerror}") from None
-    except tomllib.TOMLDecodeError as error:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"{path} is not valid TOML: {error}") from None
     sections = {}
     if isinstance(document.get("test"), dict):

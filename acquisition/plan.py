@@ -195,7 +195,7 @@ def plan_from_file(path: str | Path, request_period_s: float = 0.01) -> TestPlan
         document = json.loads(path.read_text())
     except OSError as error:
         raise ConfigError(f"cannot read the plan file {path}: {error.strerror}") from None
-    except json.JSONDecodeError as error:
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"plan file {path} is not JSON: {error}") from None
     return plan_from_document(document, f"plan file {path}", request_period_s)
 

@@ -187,7 +187,7 @@ def read_toml(path: Path, kind: str) -> dict[str, object]:
         raise ConfigError(f"{kind} {path} does not exist") from None
     except IsADirectoryError:
         raise ConfigError(f"{kind} {path} is a directory, not a TOML file") from None
-    except tomllib.TOMLDecodeError as error:
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"{kind} {path} is not valid TOML: {error}") from None
 
 

@@ -437,6 +437,31 @@ def test_an_output_nowhere_to_write_is_refused_before_the_work(
     assert not (tmp_path / "missing").exists()
 
 
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["diagnose", "REC", "--identification", "REC"],
+        ["identify", "REC", "--prior", "REC"],
+        ["identify", "REC", "--vehicle", "REC"],
+        ["identify", "REC", "--signals", "REC"],
+        ["simulate", "out.blf", "--plan", "REC"],
+        ["acquire", "--config", "REC"],
+    ],
+)
+def test_a_binary_file_where_text_belongs_is_named(
+    command: list[str],
+    recording: Path,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A recording given for a JSON or TOML file (a slip of the shell's completion) is named
+    as not JSON or TOML; it was a UnicodeDecodeError's traceback."""
+    monkeypatch.chdir(tmp_path)
+    message = _error(capsys, [str(recording) if word == "REC" else word for word in command])
+    assert f"{recording}" in message and ("not JSON" in message or "not valid TOML" in message)
+
+
 def test_profile_needs_a_setup_or_recordings(
     recording: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

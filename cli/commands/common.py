@@ -125,7 +125,7 @@ def read_identification(path: Path, option: str = "--identification") -> dict:
         document = json.loads(path.read_text(encoding="utf-8"))
     except OSError as error:
         raise ConfigError(f"cannot read {option} {path}: {error.strerror}") from None
-    except json.JSONDecodeError as error:
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"{option} {path} is not JSON: {error}") from None
     if not isinstance(document, dict) or "parameters" not in document:
         raise ConfigError(
