@@ -54,6 +54,16 @@ def load_database(path: str | os.PathLike[str]) -> Database:
     if path.is_dir():
         raise DbcError(f"CAN database {path} is a directory, not a DBC file")
     try:
+        with path.open("rb") as handle:
+            binary = b"\0" in handle.read(4096)
+    except OSError as error:
+        raise DbcError(f"cannot read CAN database {path}: {error.strerror or error}") from error
+    if binary:  # cantools would quote its bytes as the syntax error
+        raise DbcError(
+            f"{path} is a binary file, not a DBC (a text file of BO_ and SG_ lines): was a "
+            "recording given as the database?"
+        )
+    try:
         try:
             database = cantools.database.load_file(path, database_format="dbc", strict=True)
         except cantools.database.UnsupportedDatabaseFormatError as strict_error:

@@ -462,6 +462,14 @@ def test_a_binary_file_where_text_belongs_is_named(
     assert f"{recording}" in message and ("not JSON" in message or "not valid TOML" in message)
 
 
+def test_a_recording_given_as_the_dbc_is_named(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    message = _error(capsys, ["inspect", str(recording), "--dbc", str(recording)])
+    assert message.endswith("is a binary file, not a DBC (a text file of BO_ and SG_ lines): "
+                            "was a recording given as the database?")  # fmt: skip
+
+
 def test_profile_needs_a_setup_or_recordings(
     recording: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -523,12 +523,15 @@ def test_load_database_errors(tmp_path):
     with pytest.raises(DbcError, match="is a directory"):
         load_database(tmp_path)
     garbage = tmp_path / "garbage.dbc"
-    garbage.write_bytes(b"\x00\x01garbage\nmore garbage\n")
+    garbage.write_bytes(b"garbage\nmore garbage\n")
     with pytest.raises(
         DbcError, match=r"garbage.dbc is not a valid DBC file: Invalid syntax"
     ) as info:
         load_database(garbage)
     assert "\n" not in str(info.value)
+    garbage.write_bytes(b"\x00\x01garbage\nmore garbage\n")
+    with pytest.raises(DbcError, match=r"garbage.dbc is a binary file, not a DBC"):
+        load_database(garbage)
     empty = tmp_path / "empty.dbc"
     empty.write_text('VERSION ""\n\nBS_:\n\nBU_: A\n')
     with pytest.raises(DbcError, match="defines no messages"):
