@@ -417,6 +417,11 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
         (["plan", "--plot", "missing/plan.png"], "the folder missing does not exist"),
         (["report", "REC", "-o", "missing/report.html"], "the folder missing does not exist"),
         (["simulate", "missing/test.blf"], "the folder missing does not exist"),
+        (["frf", "REC", "--json", "REC"], "is a CAN recording: the result would be written over"),
+        (["inspect", "REC", "--json", "REC.json"], "holds the metadata of the recording"),
+        (["report", "REC", "-o", "REC"], "is a CAN recording"),
+        (["report", "REC", "-o", "report.pdf"], "the report is one HTML page"),
+        (["identify", "REC", "--plot", "fit.txt"], "cannot plot to fit.txt: give a file name"),
     ],
 )
 def test_an_output_nowhere_to_write_is_refused_before_the_work(
@@ -429,12 +434,16 @@ def test_an_output_nowhere_to_write_is_refused_before_the_work(
 ) -> None:
     """A result file in a folder that does not exist, or a folder for a file, or a mechanism
     the library lacks, is named when the command is read: `dtid identify --json results/v1.json`
-    without results/ wrote nothing after its minutes of search before."""
+    without results/ wrote nothing after its minutes of search before. A result is never
+    written over a recording or its metadata (`dtid frf X.blf --json X.blf` had replaced the
+    recording by the FRFs' JSON)."""
     monkeypatch.chdir(tmp_path)
+    before = recording.read_bytes()
     with pytest.raises(SystemExit) as status:
-        main([str(recording) if word == "REC" else word for word in command])
+        main([word.replace("REC", str(recording)) for word in command])
     assert status.value.code == 2 and why in capsys.readouterr().err
     assert not (tmp_path / "missing").exists()
+    assert recording.read_bytes() == before
 
 
 @pytest.mark.parametrize(

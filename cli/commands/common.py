@@ -11,6 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TextIO
 
+from dtid.acquisition.logfile import SUPPORTED_SUFFIXES
 from dtid.errors import ConfigError
 from dtid.simulator.vehicle_data import (
     VehicleData,
@@ -100,10 +101,10 @@ def positive_float(text: str) -> float:
     return value
 
 
-def output_file(text: str) -> Path:
-    """argparse type: a file the command writes when its work is done.
+def new_file(text: str) -> Path:
+    """argparse type: a file the command writes, in a folder that exists and takes files.
 
-    Its folder must exist and take files, so that a mistyped or missing folder is named before
+    Checked when the command is read, so that a mistyped or missing folder is named before
     minutes of identification, not after them (the result was then lost).
     """
     path = Path(text)
@@ -116,6 +117,37 @@ def output_file(text: str) -> Path:
         )
     if not os.access(folder, os.W_OK | os.X_OK):
         raise argparse.ArgumentTypeError(f"cannot write {text}: the folder {folder} is read-only")
+    return path
+
+
+def output_file(text: str) -> Path:
+    """argparse type: a result file (:func:`new_file`) that is neither a CAN recording nor a
+    recording's metadata: nothing a user recorded is written over."""
+    path = new_file(text)
+    if path.suffix.lower() in SUPPORTED_SUFFIXES and path.exists():
+        raise argparse.ArgumentTypeError(
+            f"{text} is a CAN recording: the result would be written over it; give another name"
+        )
+    recording = path.with_name(path.name.removesuffix(".json"))
+    if recording != path and recording.suffix.lower() in SUPPORTED_SUFFIXES and recording.exists():
+        raise argparse.ArgumentTypeError(
+            f"{text} holds the metadata of the recording {recording}: the result would be "
+            "written over it; give another name"
+        )
+    return path
+
+
+def plot_file(text: str) -> Path:
+    """argparse type: a figure (:func:`output_file`) in a format matplotlib writes."""
+    from matplotlib.backend_bases import FigureCanvasBase
+
+    path = output_file(text)
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if path.suffix[1:].lower() not in formats:
+        raise argparse.ArgumentTypeError(
+            f"cannot plot to {text}: give a file name ending in one of "
+            + ", ".join(f".{name}" for name in sorted(formats))
+        )
     return path
 
 

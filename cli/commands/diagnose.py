@@ -22,6 +22,7 @@ from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
     output_file,
+    plot_file,
     read_identification,
     vehicle_data,
 )
@@ -77,7 +78,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help=f"mechanisms to consider (default: all of {', '.join(BY_NAME)}; none: locate only)",
     )
     parser.add_argument("--json", type=output_file, help="write the diagnosis as JSON")
-    parser.add_argument("--plot", type=output_file, help="plot the mismatch map and the FRFs")
+    parser.add_argument("--plot", type=plot_file, help="plot the mismatch map and the FRFs")
     add_interface_options(parser)
     parser.set_defaults(run=run)
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dtid.cli.commands.common import add_interface_options, output_file, positive_float
+from dtid.cli.commands.common import add_interface_options, output_file, plot_file, positive_float
 from dtid.dbc.loader import load_interface
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate
 from dtid.identification.samples.recording import load_recording
@@ -26,7 +26,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("recordings", type=Path, nargs="+", metavar="RECORDING")
     parser.add_argument("--json", type=output_file, help="write the FRFs as JSON")
-    parser.add_argument("--plot", type=output_file, help="plot |G_DRV| per amplitude (Fig. 3)")
+    parser.add_argument("--plot", type=plot_file, help="plot |G_DRV| per amplitude (Fig. 3)")
     parser.add_argument(
         "--resolution",
         type=positive_float,

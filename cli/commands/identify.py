@@ -21,6 +21,7 @@ from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
     output_file,
+    plot_file,
     positive_float,
     vehicle_data,
 )
@@ -54,7 +55,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_search_options(parser)
     parser.add_argument("--json", type=output_file, help="write the result as JSON")
     parser.add_argument(
-        "--plot", type=output_file, help="overlay measured and identified FRFs (Fig. 6)"
+        "--plot", type=plot_file, help="overlay measured and identified FRFs (Fig. 6)"
     )
     add_interface_options(parser)
     parser.set_defaults(run=run)

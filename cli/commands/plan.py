@@ -15,6 +15,7 @@ from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
     output_file,
+    plot_file,
     positive_float,
     read_identification,
     vehicle_data,
@@ -153,7 +154,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--json", type=output_file, help="write the plan as JSON ([test] plan = FILE)"
     )
-    parser.add_argument("--plot", type=output_file, help="plot precision against test time")
+    parser.add_argument("--plot", type=plot_file, help="plot precision against test time")
     add_interface_options(parser)
     add_vehicle_option(parser)
     parser.set_defaults(run=run)

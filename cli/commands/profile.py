@@ -14,6 +14,7 @@ from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
     output_file,
+    plot_file,
     vehicle_data,
 )
 from dtid.cli.commands.identify import add_bounds_options, parse_bounds, parse_fixed
@@ -40,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_vehicle_option(parser)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=output_file, help="write the profiles as JSON")
-    parser.add_argument("--plot", type=output_file, help="plot the profiles")
+    parser.add_argument("--plot", type=plot_file, help="plot the profiles")
     add_interface_options(parser)
     parser.set_defaults(run=run)
 

@@ -18,6 +18,14 @@ from dtid.dbc.loader import load_interface
 from dtid.identification.html_report import REPORT_FILE, gather, write_report
 
 
+def html_file(text: str) -> Path:
+    """argparse type: the report's page (:func:`output_file`), named .html or .htm."""
+    path = output_file(text)
+    if path.suffix.lower() not in (".html", ".htm"):
+        raise argparse.ArgumentTypeError(f"the report is one HTML page: name it .html, not {text}")
+    return path
+
+
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
     parser = subparsers.add_parser(
@@ -33,7 +41,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "-o",
         "--output",
-        type=output_file,
+        type=html_file,
         help=f"the HTML file (default: {REPORT_FILE} in the session directory, or beside the "
         "first recording)",
     )

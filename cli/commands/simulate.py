@@ -9,7 +9,7 @@ from pathlib import Path
 from dtid.acquisition.logfile import write_log
 from dtid.acquisition.metadata import session_metadata
 from dtid.acquisition.plan import TestPlan, plan_from_file
-from dtid.cli.commands.common import add_interface_options, output_file, positive_float
+from dtid.cli.commands.common import add_interface_options, new_file, positive_float
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
 from dtid.simulator.controller import IdleController
@@ -34,7 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "timestamps in simulated time, with its metadata (docs/formats.md).",
     )
     parser.add_argument(
-        "output", type=output_file, help="recording to write (.blf, .asc, .log, .mf4, .trc or .csv)"
+        "output", type=new_file, help="recording to write (.blf, .asc, .log, .mf4, .trc or .csv)"
     )
     parser.add_argument(
         "--params", type=Path, help="parameter set (TOML; default: the reference vehicle)"
