@@ -106,6 +106,55 @@ def test_an_abort_names_its_reason() -> None:
     assert "test ended: aborted (speed_window: the filtered engine speed left the window" in page
 
 
+def test_a_monitor_that_missed_the_first_events_asks_the_replay_for_them(
+    session: SimulatedSession,  # noqa: F811
+) -> None:
+    """Started before the daemon, the monitor asked the replay while it held nothing, and its
+    subscription joined the stream after the session event: it asks again from the first event
+    missing. (Without this, `dtid monitor --until-finished` ended on a busy host with a page
+    that never left "waiting for the daemon", CI of 2026-12-07.)"""
+    import json
+    import threading
+
+    import zmq
+
+    from dtid.identification.service.monitor import Monitor
+
+    folder = Path(tempfile.mkdtemp(prefix="dtidr-", dir="/tmp"))
+    pipeline = _pipeline(folder)
+    context = zmq.Context.instance()
+    rep = context.socket(zmq.REP)
+    rep.bind(pipeline.replay)
+    asked: list[int] = []
+
+    def serve() -> None:  # nothing kept at the first request; all of it at the next
+        for answer in ([], session.events):
+            if not rep.poll(20_000):
+                return
+            asked.append(json.loads(rep.recv())["from_seq"])
+            rep.send(json.dumps([e for e in answer if e["seq"] >= asked[-1]]).encode())
+
+    thread = threading.Thread(target=serve)
+    thread.start()
+    monitor = Monitor(pipeline)
+    try:
+        monitor.poll(0.5)  # the first request, answered with nothing
+        for event in session.events[3:]:  # the stream as the late subscription saw it
+            monitor._event(event)
+        assert monitor.state.session is None
+        for _ in range(100):  # a bound on the wait, not a timing asserted
+            monitor.poll(0.2)
+            if monitor.state.session is not None:
+                break
+    finally:
+        monitor.close()
+        thread.join(25)
+        rep.close(linger=0)
+        shutil.rmtree(folder, ignore_errors=True)
+    assert asked == [0, 0]  # the gap starts at the session event, seq 0
+    assert monitor.state.session == "s1" and monitor.state.end is not None
+
+
 @pytest.fixture
 def tmux() -> Iterator[list[str]]:
     """A tmux server of the test's own (its socket name), killed afterwards."""

@@ -47,6 +47,8 @@ PLOT_ROWS = 9
 """Rows of the |G_DRV| character plot."""
 PLOT_MARKS = "123456789"
 """Mark of the n-th chirp's curve."""
+REPLAY_RETRY_S = 2.0
+"""Shortest wall time between two requests to the daemon's replay, s."""
 SHOWN_PARAMETERS = ("J_sum", "x1", "x12", "c12", "c23", "d12", "d23", "Tc12", "eps12", "eps23")
 
 
@@ -326,7 +328,7 @@ class Monitor:
         self._results = self._subscribe(endpoint(pipeline.results), "results")
         self._replay_endpoint = endpoint(pipeline.replay)
         self._req: zmq.Socket | None = None
-        self._asked_at = 0.0
+        self._asked_at = -math.inf
         self._replayed = False
         self._log: EventLog | None = None
         self._live: LiveSession | None = None
@@ -409,12 +411,22 @@ class Monitor:
         chirp = state.plan.chirps[state.chirp]
         state.building = building_frf(live, chirp, state.phase_t, state.last_t)
 
-    def _ask_replay(self, from_seq: int = 0) -> None:
-        """Ask the daemon's replay for its kept events, until it answers once."""
-        if self._replayed and from_seq == 0:
+    def _ask_replay(self) -> None:
+        """Ask the daemon's replay for its kept events until it answers once, and again from the
+        first one missing while later ones arrived (a subscriber joins a publisher late, so a
+        monitor started before the daemon can miss the session's first events, which the
+        replay, asked before there were any, did not hold); at most every
+        :data:`REPLAY_RETRY_S`."""
+        gap = self._log is not None and self._log.gap
+        if self._replayed and not gap:
             return
-        if self._req is not None and time.monotonic() - self._asked_at < 2.0 and from_seq == 0:
+        if time.monotonic() - self._asked_at < REPLAY_RETRY_S:
             return
+        self._request(self._log.next_seq if gap and self._log is not None else 0)
+
+    def _request(self, from_seq: int) -> None:
+        """Send one request to the replay, on a new socket (a REQ socket whose request went
+        unanswered cannot send again)."""
         if self._req is not None:
             self._req.close(linger=0)
         self._req = self._context.socket(zmq.REQ)
@@ -438,7 +450,7 @@ class Monitor:
                 self._event(event)
         seqs = [e["seq"] for e in events if isinstance(e, dict) and isinstance(e.get("seq"), int)]
         if len(events) >= REPLAY_PAGE and seqs:
-            self._ask_replay(max(seqs) + 1)
+            self._request(max(seqs) + 1)
         else:
             self._req.close(linger=0)  # type: ignore[union-attr]
             self._req = None
