@@ -391,6 +391,29 @@ def test_a_recording_given_twice_is_refused(
 def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "expected NAME=VALUE" in _error(capsys, ["identify", str(recording), "--fix", "J9=1"])
     assert "is not a number" in _error(capsys, ["identify", str(recording), "--fix", "c12=stiff"])
+    for bad in ("c12=nan", "c12=inf", "c12=-5"):  # nan and inf were tracebacks in the search
+        message = _error(capsys, ["identify", str(recording), "--fix", bad])
+        assert "must be a finite number >= 0" in message, bad
+    twice = _error(capsys, ["identify", str(recording), "--fix", "c12=500", "c12=600"])
+    assert "--fix gives c12 twice (500, 600)" in twice
+
+
+@pytest.mark.parametrize(
+    ("command", "why"),
+    [
+        (["identify", "REC", "--seed", "-1"], "-1 must lie in 0 .. 4294967295"),
+        (["simulate", "out.blf", "--seed", "4294967296"], "must lie in 0 .. 4294967295"),
+        (["plan", "--validation", "nan"], "nan must be a number >= 0"),
+    ],
+)
+def test_a_seed_or_amplitude_out_of_range_is_a_usage_error(
+    command: list[str], why: str, recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A negative seed was numpy's traceback; a NaN validation amplitude was planned for and
+    failed 25 s later on writing the JSON."""
+    with pytest.raises(SystemExit) as status:
+        main([word.replace("REC", str(recording)) for word in command])
+    assert status.value.code == 2 and why in capsys.readouterr().err
 
 
 def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -3,25 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 from dtid.acquisition.campaign import Campaign
 from dtid.acquisition.config import load_config
 from dtid.acquisition.daemon import DEFAULT_LINGER_S, DEFAULT_WAIT_S, Daemon
-from dtid.cli.commands.common import positive_float
+from dtid.cli.commands.common import non_negative_float, positive_float
 from dtid.errors import ConfigError
-
-
-def non_negative_float(text: str) -> float:
-    """argparse type: a finite number >= 0."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"{text} must be a number >= 0")
-    return value
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:

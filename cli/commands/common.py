@@ -90,6 +90,32 @@ def add_interface_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+MAX_SEED = 2**32 - 1
+"""Largest seed numpy's generators of the search and the simulator take."""
+
+
+def seed(text: str) -> int:
+    """argparse type: a random seed, a whole number 0 .. :data:`MAX_SEED`."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"{text} must lie in 0 .. {MAX_SEED}")
+    return value
+
+
+def non_negative_float(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"{text} must be a number >= 0")
+    return value
+
+
 def positive_float(text: str) -> float:
     """argparse type: a finite number > 0."""
     try:

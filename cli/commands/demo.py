@@ -30,7 +30,7 @@ from dtid.acquisition.config import (
 )
 from dtid.acquisition.daemon import Daemon
 from dtid.acquisition.plan import TestPlan, plan_from_file
-from dtid.cli.commands.common import positive_float
+from dtid.cli.commands.common import positive_float, seed
 from dtid.cli.commands.frf import summary_line
 from dtid.dbc.loader import load_interface
 from dtid.errors import AnalysisError, RecordingError
@@ -81,7 +81,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         default=DEFAULT_SPEEDUP,
         help="bus time per wall time (default: %(default)s)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the vehicle's noise")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of the vehicle's noise")
     parser.add_argument(
         "--plan",
         type=Path,

@@ -12,6 +12,7 @@ values. Intervals wider than ``dtid plan``'s default targets are listed after th
 from __future__ import annotations
 
 import argparse
+import math
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,7 @@ from dtid.cli.commands.common import (
     output_file,
     plot_file,
     positive_float,
+    seed,
     vehicle_data,
 )
 from dtid.errors import ConfigError
@@ -118,7 +120,7 @@ def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]]:
 def add_search_options(parser: argparse.ArgumentParser) -> None:
     """Add the search's seed and budget (``dtid identify`` and ``dtid worker``)."""
     defaults = SearchSettings()
-    parser.add_argument("--seed", type=int, default=defaults.seed, help="seed of the search")
+    parser.add_argument("--seed", type=seed, default=defaults.seed, help="seed of the search")
     parser.add_argument(
         "--generations",
         type=int,
@@ -263,9 +265,14 @@ def parse_fixed(items: list[str]) -> dict[str, float]:
                 f"{', '.join(THETA_NAMES + OPERATING_POINT)}"
             )
         try:
-            fixed[name] = float(text)
+            value = float(text)
         except ValueError:
             raise ConfigError(f"--fix {item!r}: {text!r} is not a number") from None
+        if not (math.isfinite(value) and value >= 0):
+            raise ConfigError(f"--fix {item!r}: the value must be a finite number >= 0")
+        if name in fixed:
+            raise ConfigError(f"--fix gives {name} twice ({fixed[name]:g}, {text}): give it once")
+        fixed[name] = value
     return fixed
 
 

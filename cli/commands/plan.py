@@ -14,6 +14,7 @@ from dtid.acquisition.config import load_config
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
+    non_negative_float,
     output_file,
     plot_file,
     positive_float,
@@ -123,7 +124,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--validation",
-        type=float,
+        type=non_negative_float,
         metavar="NM",
         help=f"validation chirp amplitude, N*m; 0 for none (default: {VALIDATION_NM:g}; with "
         "--after 0, the first test's stands)",

@@ -15,6 +15,7 @@ from dtid.cli.commands.common import (
     add_vehicle_option,
     output_file,
     plot_file,
+    seed,
     vehicle_data,
 )
 from dtid.cli.commands.identify import add_bounds_options, parse_bounds, parse_fixed
@@ -39,7 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--fix", nargs="+", default=[], metavar="NAME=VALUE")
     add_bounds_options(parser)
     add_vehicle_option(parser)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=seed, default=0)
     parser.add_argument("--json", type=output_file, help="write the profiles as JSON")
     parser.add_argument("--plot", type=plot_file, help="plot the profiles")
     add_interface_options(parser)

@@ -9,7 +9,7 @@ from pathlib import Path
 from dtid.acquisition.logfile import write_log
 from dtid.acquisition.metadata import session_metadata
 from dtid.acquisition.plan import TestPlan, plan_from_file
-from dtid.cli.commands.common import add_interface_options, new_file, positive_float
+from dtid.cli.commands.common import add_interface_options, new_file, positive_float, seed
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
 from dtid.simulator.controller import IdleController
@@ -64,7 +64,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="simulate the test of a dtid plan JSON file (its amplitudes, repeats, duration, "
         "band and validation chirp; instead of --amplitudes, --f1, --f2, --duration)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of noise and combustion")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of noise and combustion")
     parser.add_argument(
         "--clean", action="store_true", help="no combustion variation and no sensor noise"
     )

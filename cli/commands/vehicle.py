@@ -11,7 +11,7 @@ from threading import Event
 
 from dtid.acquisition.bus import open_bus
 from dtid.acquisition.config import load_config
-from dtid.cli.commands.common import positive_float
+from dtid.cli.commands.common import positive_float, seed
 from dtid.dbc.loader import load_interface
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
@@ -46,7 +46,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--setpoint", type=positive_float, default=IdleController().setpoint_rpm, help="idle rpm"
     )
-    parser.add_argument("--seed", type=int, default=0, help="seed of noise and combustion")
+    parser.add_argument("--seed", type=seed, default=0, help="seed of noise and combustion")
     parser.add_argument(
         "--clean", action="store_true", help="no combustion variation and no sensor noise"
     )
