@@ -28,6 +28,7 @@ Decoding makes times relative to the first frame, so an absolute offset is harml
 
 import io
 import logging
+import math
 import os
 import re
 import struct
@@ -561,7 +562,10 @@ def _stray_times(frames: list[tuple[int, can.Message]]) -> set[int]:
 
 
 def _consistent(frame: can.Message) -> bool:
-    """A classical data frame carries as many bytes as its DLC says (a cut line does not)."""
+    """A frame's time is a number (python-can reads a candump ``(nan)`` as one), and a classical
+    data frame carries as many bytes as its DLC says (a cut line does not)."""
+    if not math.isfinite(frame.timestamp):
+        return False
     if frame.is_fd or frame.is_remote_frame or frame.is_error_frame:
         return True
     return len(frame.data) == min(frame.dlc, 8)

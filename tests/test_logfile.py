@@ -279,6 +279,7 @@ def test_text_log_with_binary_bytes_loses_that_line_only(tmp_path, written, fram
         (".log", b"(12.5) can0 this is not a frame\n"),
         (".trc", b"   999   12.000 DT  1  zzzz Rx -  8  00 00\n"),
         (".csv", b"12.5,0xZZZ,0,0,0,8,not base64\n"),
+        (".log", b"(nan) can0 1A0#781F000000000000\n"),  # python-can reads it, time and all
     ],
 )
 def test_malformed_line_loses_that_line_only(tmp_path, written, frames, suffix, malformed, caplog):
