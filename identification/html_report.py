@@ -152,7 +152,9 @@ def gather(
         ("identification", id_path, identification),
         ("diagnosis", dg_path, diagnosis),
     ):
-        mismatch = _not_of_these(documents[kind], kind, path, recordings)
+        mismatch = _not_a(documents[kind], kind, path) or _not_of_these(
+            documents[kind], kind, path, recordings
+        )
         if mismatch and given:
             raise RecordingError(mismatch)
         if mismatch:  # found beside the recordings, not asked for
@@ -166,6 +168,27 @@ def gather(
         diagnosis_figure=figure if figure.exists() else None,
         title=title,
     )
+
+
+def _not_a(document: dict[str, Any] | None, kind: str, path: Path) -> str | None:
+    """What to say where ``document`` is not the ``kind`` of JSON the page reads (another
+    command's, or edited by hand): its keys would be shown as nothing, or fail to format."""
+    if document is None:
+        return None
+    if kind == "identification":
+        parameters = document.get("parameters")
+        fits = isinstance(parameters, dict) and all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in parameters.values()
+        )
+        command = "dtid identify --json"
+    else:
+        fits = isinstance(document.get("adequate"), bool) and isinstance(
+            document.get("verdict"), dict
+        )
+        command = "dtid diagnose --json"
+    if fits and (kind == "diagnosis" or document["parameters"]):
+        return None
+    return f"{path} is not {kind} JSON as `{command}` writes it: give that file"
 
 
 def _not_of_these(

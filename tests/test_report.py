@@ -132,6 +132,25 @@ def test_a_recording_alone_says_what_is_missing(tmp_path: Path) -> None:
     assert "id='fig-fit'" not in text
 
 
+def test_a_document_of_another_kind_is_named(
+    command_outputs: CommandOutputs, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The identification given as the diagnosis had been shown as "the model explains the
+    recordings"; a parameter edited into text was a traceback."""
+    recording, folder = str(command_outputs.recording), command_outputs.folder
+    out = str(tmp_path / "r.html")
+    given = ["--diagnosis", str(folder / "identification.json")]
+    assert main(["report", recording, "-o", out, *given]) == 2
+    assert "is not diagnosis JSON as `dtid diagnose --json` writes it" in capsys.readouterr().err
+    edited = json.loads((folder / "identification.json").read_text())
+    edited["parameters"]["c12"] = "abc"
+    (tmp_path / "edited.json").write_text(json.dumps(edited))
+    given = ["--identification", str(tmp_path / "edited.json")]
+    assert main(["report", recording, "-o", out, *given]) == 2
+    assert "is not identification JSON" in capsys.readouterr().err
+    assert not (tmp_path / "r.html").exists()
+
+
 def test_bad_input_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["report", str(tmp_path / "missing.blf")]) == 2
     assert "missing.blf does not exist" in capsys.readouterr().err
