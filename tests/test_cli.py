@@ -396,6 +396,8 @@ def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixtu
         assert "must be a finite number >= 0" in message, bad
     twice = _error(capsys, ["identify", str(recording), "--fix", "c12=500", "c12=600"])
     assert "--fix gives c12 twice (500, 600)" in twice
+    both = ["identify", str(recording), "--fix", "c23=80", "--bounds", "c23=10:70"]
+    assert "c23 is both held (--fix) and searched within bounds" in _error(capsys, both)
 
 
 @pytest.mark.parametrize(
@@ -505,7 +507,7 @@ def test_a_recording_given_as_the_dbc_is_named(
 def test_profile_needs_a_setup_or_recordings(
     recording: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    assert "not both" in _error(capsys, ["profile"])
+    assert "or recordings to profile" in _error(capsys, ["profile"])
     assert "not both" in _error(capsys, ["profile", str(recording), "--setup", "2"])
 
 

@@ -379,6 +379,8 @@ def test_a_bad_request_is_refused_in_one_line(
     assert "2 N*m: the validation chirp's amplitude" in capsys.readouterr().err
     assert main(["plan", "--max-amplitude", "15", "--validation", "12"]) == 2
     assert "2 N*m: below the validation chirp's" in capsys.readouterr().err
+    assert main(["plan", "--max-time", "60"]) == 2  # the shortest test lasts longer
+    assert "no test fits in --max-time 60 s" in capsys.readouterr().err
     assert main(["plan", "--target", "stiffness=5"]) == 2
     assert "NAME one of J1" in capsys.readouterr().err
     (tmp_path / "other.json").write_text('{"runs": []}')

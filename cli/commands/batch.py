@@ -20,8 +20,7 @@ from dtid.cli.commands.common import add_interface_options, add_vehicle_option
 from dtid.cli.commands.identify import (
     add_bounds_options,
     add_search_options,
-    parse_bounds,
-    parse_fixed,
+    fixed_and_bounds,
     search_settings,
 )
 from dtid.errors import ConfigError
@@ -62,13 +61,14 @@ def run(args: argparse.Namespace) -> int:
     """Run the batch and print a line per test."""
     if args.workers < 1:
         raise ConfigError("--workers must be at least 1")
+    fixed, bounds = fixed_and_bounds(args)
     options = BatchOptions(
         dbc=args.dbc,
         signals=args.signals,
         vehicle=args.vehicle,
         prior=args.prior,
-        fixed=parse_fixed(args.fix),
-        bounds=parse_bounds(args.bounds),
+        fixed=fixed,
+        bounds=bounds,
         span=None if args.span is None else args.span / 100,
         settings=search_settings(args),
         profile_points=args.profile_points,

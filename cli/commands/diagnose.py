@@ -75,7 +75,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         nargs="*",
         choices=list(BY_NAME),
         metavar="NAME",
-        help=f"mechanisms to consider (default: all of {', '.join(BY_NAME)}; none: locate only)",
+        help=f"mechanisms to consider (default: all of {', '.join(BY_NAME)}; the option alone: "
+        "locate only)",
     )
     parser.add_argument("--json", type=output_file, help="write the diagnosis as JSON")
     parser.add_argument("--plot", type=plot_file, help="plot the mismatch map and the FRFs")

@@ -276,10 +276,23 @@ def parse_fixed(items: list[str]) -> dict[str, float]:
     return fixed
 
 
+def fixed_and_bounds(
+    args: argparse.Namespace,
+) -> tuple[dict[str, float], dict[str, tuple[float, float]]]:
+    """``--fix`` and ``--bounds`` parsed; a parameter in both is refused (its bounds would be
+    ignored without a word)."""
+    fixed, bounds = parse_fixed(args.fix), parse_bounds(args.bounds)
+    both = sorted(set(fixed) & set(bounds))
+    if both:
+        raise ConfigError(
+            f"{both[0]} is both held (--fix) and searched within bounds (--bounds): give one"
+        )
+    return fixed, bounds
+
+
 def run(args: argparse.Namespace) -> int:
     """Identify, print the result, write JSON and plot as asked."""
-    fixed = parse_fixed(args.fix)
-    bounds = parse_bounds(args.bounds)
+    fixed, bounds = fixed_and_bounds(args)
     settings = search_settings(args)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
     vehicle = vehicle_data(args)

@@ -18,7 +18,7 @@ from dtid.cli.commands.common import (
     seed,
     vehicle_data,
 )
-from dtid.cli.commands.identify import add_bounds_options, parse_bounds, parse_fixed
+from dtid.cli.commands.identify import add_bounds_options, fixed_and_bounds
 from dtid.errors import ConfigError
 from dtid.identification.pipeline import run_identification
 from dtid.identification.setups import profile_setup, setup
@@ -49,7 +49,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Profile and report."""
-    if (args.setup is None) == (not args.recordings):
+    if args.setup is None and not args.recordings:
+        raise ConfigError("give --setup 1..4 (the paper's plant) or recordings to profile")
+    if args.setup is not None and args.recordings:
         raise ConfigError("give either --setup 1..4 or recordings to profile, not both")
     if args.points < 3:
         raise ConfigError("--points must be at least 3")
@@ -57,12 +59,13 @@ def run(args: argparse.Namespace) -> int:
         profiles = profile_setup(setup(args.setup), points=args.points, seed=args.seed)
         title = f"Setup {args.setup}"
     else:
+        fixed, bounds = fixed_and_bounds(args)
         tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle_data(args))
         report = run_identification(
             tests,
             load_parameters(args.prior) if args.prior else reference_parameters(),
-            fixed=parse_fixed(args.fix),
-            bounds=parse_bounds(args.bounds),
+            fixed=fixed,
+            bounds=bounds,
             span=None if args.span is None else args.span / 100,
             profile_points=args.points,
         )

@@ -443,6 +443,15 @@ def request_exclusion(
     return ""
 
 
+def _nothing_fits(max_time_s: float, validation_nm: float) -> ConfigError:
+    return ConfigError(
+        f"no test fits in --max-time {max_time_s:g} s: the shortest (one "
+        f"{min(DURATIONS_S):g} s chirp per amplitude"
+        f"{', and the validation chirp' if validation_nm else ''}) lasts "
+        f"{shortest_test_s(validation_nm):g} s"
+    )
+
+
 def _too_few_amplitudes(excluded: Mapping[float, str]) -> ConfigError:
     return ConfigError(
         "fewer than two amplitudes are allowed ("
@@ -570,12 +579,7 @@ def recommend(
             "simulated; plan with --spread 0, or at another --prior"
         )
     if closest is None:
-        raise ConfigError(
-            f"no test fits in --max-time {max_time_s:g} s: the shortest (one "
-            f"{min(DURATIONS_S):g} s chirp per amplitude"
-            f"{', and the validation chirp' if validation_nm else ''}) lasts "
-            f"{shortest_test_s(validation_nm):g} s"
-        )
+        raise _nothing_fits(max_time_s, validation_nm)
     design = best[1] if best is not None else closest[1]
     per_vehicle = tuple(predict(vehicle, design, recorded) for vehicle in vehicles)
     unmet = tuple(
@@ -723,6 +727,8 @@ def plan_test(
     }
     if len(amplitudes) - len(excluded) < 2:  # refused before a minute of simulations
         raise _too_few_amplitudes(excluded)
+    if not recorded and max_time_s < shortest_test_s(validation_nm):  # recorded may suffice
+        raise _nothing_fits(max_time_s, validation_nm)
     centre, notes = planning_prior(prior)
     info = measure_information(centre, amplitudes, options=options, seeds=seeds, vehicle=vehicle)
     correlation = None
