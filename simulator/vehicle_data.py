@@ -74,16 +74,21 @@ from dtid.simulator.parameters import VEHICLE_TABLES, read_toml
 ENGINE_LAG = ("none", "measured")
 """The ``[model] engine_lag`` choices (see the module notes)."""
 
-ENGINE_KEYS: dict[str, tuple[str, str]] = {
-    "bore": ("bore_m", "m"),
-    "r": ("crank_radius_m", "m"),
-    "l": ("rod_length_m", "m"),
-    "eps_c": ("compression_ratio", "1"),
-    "kappa": ("isentropic_exponent", "1"),
-    "p_l": ("manifold_pressure_pa", "Pa"),
-    "m_osc": ("oscillating_mass_kg", "kg"),
+ENGINE_KEYS: dict[str, tuple[str, str, float, float]] = {
+    "bore": ("bore_m", "m", 0.05, 0.15),
+    "r": ("crank_radius_m", "m", 0.02, 0.1),
+    "l": ("rod_length_m", "m", 0.08, 0.35),
+    "eps_c": ("compression_ratio", "1", 6.0, 25.0),
+    "kappa": ("isentropic_exponent", "1", 1.1, 1.67),
+    "p_l": ("manifold_pressure_pa", "Pa", 1.0e4, 3.5e5),
+    "m_osc": ("oscillating_mass_kg", "kg", 0.1, 5.0),
 }
-"""``[engine]`` key (the paper's symbol) -> (:class:`EngineGeometry` field, unit)."""
+"""``[engine]`` key (the paper's symbol) -> (:class:`EngineGeometry` field, unit, and the range
+of four-cylinder car and van engines, wide: bores of 50-150 mm, strokes of 40-200 mm, petrol to
+diesel compression, a throttled to a boosted manifold, the ratio of specific heats of air and
+burnt gas up to a monatomic gas's). A value outside it is refused: it is mostly a unit slip
+(the bore in mm, the manifold pressure in bar), which the model would take as an engine of
+another size and fit garbage to."""
 
 
 @dataclass(frozen=True)
@@ -125,7 +130,7 @@ class VehicleData:
         """The JSON entry ``vehicle_data``: the crank-train data by ``[engine]`` key (SI units),
         the speed sensor's arithmetic and the model's integration."""
         return {
-            "engine": {key: getattr(self.engine, field) for key, (field, _) in ENGINE_KEYS.items()},
+            "engine": {key: getattr(self.engine, spec[0]) for key, spec in ENGINE_KEYS.items()},
             "sensors": {"speed_average": self.speed_average},
             "model": {"integration": self.integration, "engine_lag": self.engine_lag},
         }
@@ -201,11 +206,16 @@ def parse_engine(table: dict[str, object], source: str) -> EngineGeometry:
                     f"each, got {value!r}"
                 )
         elif key in ENGINE_KEYS:
-            field, unit = ENGINE_KEYS[key]
+            field, unit, lower, upper = ENGINE_KEYS[key]
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise ConfigError(f"{source}: [engine] {key} must be a number in {unit}")
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"{source}: [engine] {key} = {value} must be > 0 {unit}")
+            if not lower <= value <= upper:
+                raise ConfigError(
+                    f"{source}: [engine] {key} = {value:g} lies outside {lower:g}-{upper:g} "
+                    f"{unit}, the range of car engines: give it in {unit}"
+                )
             values[field] = float(value)
         else:
             raise ConfigError(

@@ -63,7 +63,9 @@ def test_the_model_table_chooses_the_integration(tmp_path: Path) -> None:
         ("[engine]\nbore = 'big'\n", "bore must be a number in m"),
         ("[engine]\nN_cyl = 6\n", "4-cylinder four-stroke"),
         ("[engine]\nfiring_order = [1, 2, 2, 4]\n", "firing_order must list"),
-        ("[engine]\nr = 0.2\nl = 0.15\n", "longer than the crank radius"),
+        ("[engine]\nr = 0.09\nl = 0.085\n", "longer than the crank radius"),
+        ("[engine]\nbore = 82\n", "bore = 82 lies outside 0.05-0.15 m.*give it in m"),  # mm
+        ("[engine]\np_l = 0.35\n", "p_l = 0.35 lies outside 10000-350000 Pa.*in Pa"),  # bar
         ("[drivetrain]\nJ1 = 0.1\n", "has no \\[engine\\] table"),
         ("[sensors]\nspeed_average = 'mean'\n", "times.* or .*speeds"),
         ("[model]\nintegration = 'rk4'\n", "euler.* or .*verlet"),
