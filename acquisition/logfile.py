@@ -321,11 +321,14 @@ def read_log_checked(path: str | os.PathLike[str]) -> tuple[list[can.Message], I
         readable frame.
     """
     path = Path(path)
-    suffix = _suffix(path)
     if not path.exists():
         raise RecordingError(f"recording {path} does not exist")
     if path.is_dir():
-        raise RecordingError(f"recording {path} is a directory, not a {suffix} file")
+        raise RecordingError(
+            f"recording {path} is a directory: give the recordings in it "
+            f"({', '.join(SUPPORTED_SUFFIXES)})"
+        )
+    suffix = _suffix(path)
     try:
         if suffix == ".blf":
             frames, integrity = _read_blf(path)

@@ -141,12 +141,13 @@ def test_write_errors(tmp_path):
 def test_read_errors(tmp_path):
     with pytest.raises(RecordingError, match=r"recording .*missing.blf does not exist"):
         read_log(tmp_path / "missing.blf")
+    (tmp_path / "recording.mdf").touch()
     with pytest.raises(RecordingError, match=r"supported suffixes are \.asc, \.blf, \.csv"):
         read_log(tmp_path / "recording.mdf")
-    folder = tmp_path / "folder.log"
-    folder.mkdir()
-    with pytest.raises(RecordingError, match="is a directory"):
-        read_log(folder)
+    for name in ("folder.log", "session"):  # a folder without a suffix too, not "format ''"
+        (tmp_path / name).mkdir()
+        with pytest.raises(RecordingError, match="is a directory: give the recordings in it"):
+            read_log(tmp_path / name)
 
 
 @pytest.mark.parametrize(
