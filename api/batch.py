@@ -106,9 +106,17 @@ def find_tests(paths: Sequence[str | os.PathLike[str]]) -> list[TestSpec]:
     ------
     RecordingError
         If an argument does not exist or a directory holds no recording.
+    ConfigError
+        If an argument is given twice.
     """
-    tests, names = [], set()
+    tests, names, seen = [], set(), {}
     for argument in map(Path, paths):
+        if argument.resolve() in seen:  # a shell glob and a name, or a folder given twice
+            raise ConfigError(
+                f"{argument} is given twice (as {seen[argument.resolve()]} before): each test is "
+                "a row of the fleet table once"
+            )
+        seen[argument.resolve()] = argument
         if argument.is_dir():
             recordings = tuple(recordings_in(argument))
             if not recordings:

@@ -170,6 +170,8 @@ def test_an_unreachable_scheduler_is_named(
     assert main(["batch", str(recording), "--scheduler", "tcp://127.0.0.1:9", "--out",
                  str(tmp_path / "out")]) == 2  # fmt: skip
     assert "cannot reach the Dask scheduler tcp://127.0.0.1:9" in capsys.readouterr().err
+    assert main(["batch", str(recording), str(recording.parent / "." / "t.blf")]) == 2
+    assert "is given twice" in capsys.readouterr().err
     (tmp_path / "file").touch()  # --out names a folder
     assert main(["batch", str(recording), "--out", str(tmp_path / "file")]) == 2
     assert "cannot make the output folder" in capsys.readouterr().err
