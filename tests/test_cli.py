@@ -133,6 +133,32 @@ def test_simulate_never_overwrites_a_recording(
     assert recording.read_bytes() == before
 
 
+def test_simulate_takes_the_engine_of_a_vehicle_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A --params vehicle file's [engine] was ignored without a word: the plant is now simulated
+    with it (or with --vehicle's), and says so."""
+    from dtid.acquisition.logfile import read_log
+    from dtid.simulator.parameters import reference_parameters
+
+    values = reference_parameters().as_dict()
+    drivetrain = "".join(f"{name} = {value!r}\n" for name, value in values.items())
+    (tmp_path / "plain.toml").write_text(drivetrain)
+    (tmp_path / "vehicle.toml").write_text(f"[drivetrain]\n{drivetrain}[engine]\nbore = 0.1\n")
+    runs = {
+        "plain": ["--params", "plain.toml"],
+        "vehicle": ["--params", "vehicle.toml"],
+        "given": ["--params", "plain.toml", "--vehicle", "vehicle.toml"],
+    }
+    data = {}
+    for name, options in runs.items():
+        paths = [str(tmp_path / o) if o.endswith(".toml") else o for o in options]
+        assert main(["simulate", str(tmp_path / f"{name}.blf"), "--duration", "5", *paths]) == 0
+        assert ("bore from" in capsys.readouterr().out) == (name != "plain"), name
+        data[name] = [bytes(frame.data) for frame in read_log(tmp_path / f"{name}.blf")]
+    assert data["vehicle"] == data["given"] != data["plain"]
+
+
 def test_simulate_through_another_dbc(tmp_path: Path) -> None:
     path = tmp_path / "other.asc"
     interface = ["--dbc", str(DATA / "other_vehicle.dbc")]

@@ -3,19 +3,32 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
 from dtid.acquisition.logfile import write_log
 from dtid.acquisition.metadata import session_metadata
 from dtid.acquisition.plan import TestPlan, plan_from_file
-from dtid.cli.commands.common import add_interface_options, new_file, positive_float, seed
+from dtid.cli.commands.common import (
+    add_interface_options,
+    add_vehicle_option,
+    new_file,
+    positive_float,
+    seed,
+)
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError
 from dtid.simulator.controller import IdleController
 from dtid.simulator.mechanisms import BY_NAME, Effects, parse_effect
-from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.simulator.parameters import (
+    VEHICLE_TABLES,
+    load_parameters,
+    read_toml,
+    reference_parameters,
+)
 from dtid.simulator.simulate import SimulationOptions, simulate
+from dtid.simulator.vehicle_data import VehicleData, load_vehicle_data
 from dtid.simulator.vehicle_frames import simulation_frames
 
 _DEFAULTS = TestPlan()
@@ -78,6 +91,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         "the main parameter defaults to the middle of its typical range)",
     )
     parser.add_argument("--force", action="store_true", help="overwrite an existing recording")
+    add_vehicle_option(parser)
     add_interface_options(parser)
     parser.set_defaults(run=run)
 
@@ -114,6 +128,14 @@ def run(args: argparse.Namespace) -> int:
         if args.clean
         else SimulationOptions(controller=controller, effects=effects)
     )
+    vehicle = simulated_vehicle(args.vehicle, args.params)
+    if vehicle is not None:
+        options = dataclasses.replace(
+            options,
+            engine=vehicle.engine,
+            speed_average=vehicle.speed_average,
+            integration=vehicle.integration,
+        )
     interface = load_interface(args.dbc, args.signals)
     result = simulate(parameters, plan, options, seed=args.seed)
     metadata = session_metadata(
@@ -129,8 +151,21 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.force,
         metadata=metadata,
     )
+    if vehicle is not None:
+        print(vehicle.describe())
     print(
         f"wrote {args.output}: {count} frames, {plan.end_s:.0f} s, chirps at "
         f"{', '.join(f'{a:g}' for a in plan.levels)} N*m"
     )
     return 0
+
+
+def simulated_vehicle(vehicle: Path | None, params: Path | None) -> VehicleData | None:
+    """The vehicle data the plant is simulated with: ``--vehicle``'s, else those of a
+    ``--params`` vehicle file that has ``[engine]``, ``[sensors]`` or ``[model]`` (one file for
+    one vehicle; they were ignored without a word), else None (the reference engine)."""
+    if vehicle is not None:
+        return load_vehicle_data(vehicle)
+    if params is not None and any(t in read_toml(params, "parameter file") for t in VEHICLE_TABLES):
+        return load_vehicle_data(params)
+    return None
