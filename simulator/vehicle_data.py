@@ -70,6 +70,7 @@ from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.engine import EngineGeometry
 from dtid.simulator.kernel import INTEGRATION, SPEED_AVERAGES
 from dtid.simulator.parameters import VEHICLE_TABLES, read_toml
+from dtid.simulator.simulate import SimulationOptions
 
 ENGINE_LAG = ("none", "measured")
 """The ``[model] engine_lag`` choices (see the module notes)."""
@@ -119,6 +120,15 @@ class VehicleData:
     source: str = "reference engine"
     integration: str = "euler"
     engine_lag: str = "none"
+
+    def simulated(self, options: SimulationOptions) -> SimulationOptions:
+        """``options`` with this vehicle's engine, speed sensor and integration."""
+        return dataclasses.replace(
+            options,
+            engine=self.engine,
+            speed_average=self.speed_average,
+            integration=self.integration,
+        )
 
     def describe(self) -> str:
         """One line on where the vehicle data come from."""

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
@@ -130,12 +129,7 @@ def run(args: argparse.Namespace) -> int:
     )
     vehicle = simulated_vehicle(args.vehicle, args.params)
     if vehicle is not None:
-        options = dataclasses.replace(
-            options,
-            engine=vehicle.engine,
-            speed_average=vehicle.speed_average,
-            integration=vehicle.integration,
-        )
+        options = vehicle.simulated(options)
     interface = load_interface(args.dbc, args.signals)
     result = simulate(parameters, plan, options, seed=args.seed)
     metadata = session_metadata(

@@ -711,12 +711,7 @@ def plan_test(
     """
     options = options or SimulationOptions()
     if vehicle is not None:
-        options = dataclasses.replace(
-            options,
-            engine=vehicle.engine,
-            speed_average=vehicle.speed_average,
-            integration=vehicle.integration,
-        )
+        options = vehicle.simulated(options)
     cap = safety.max_amplitude_nm
     amplitudes = [a for a in CANDIDATE_AMPLITUDES_NM if a <= cap * (1 + 1e-9)]
     for extra in [validation_nm, *(a for d in recorded for a in d.amplitudes_nm)]:
