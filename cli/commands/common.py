@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TextIO
 
 from dtid.acquisition.logfile import SUPPORTED_SUFFIXES
+from dtid.acquisition.metadata import sidecar_path
 from dtid.errors import ConfigError
 from dtid.simulator.vehicle_data import (
     VehicleData,
@@ -153,7 +154,11 @@ def output_file(text: str) -> Path:
             f"{text} is a CAN recording: the result would be written over it; give another name"
         )
     recording = path.with_name(path.name.removesuffix(".json"))
-    if recording != path and recording.suffix.lower() in SUPPORTED_SUFFIXES and recording.exists():
+    if (
+        sidecar_path(recording) == path
+        and recording.suffix.lower() in SUPPORTED_SUFFIXES
+        and recording.exists()
+    ):
         raise argparse.ArgumentTypeError(
             f"{text} holds the metadata of the recording {recording}: the result would be "
             "written over it; give another name"
