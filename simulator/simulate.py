@@ -53,6 +53,9 @@ from dtid.simulator.parameters import NAMES, DrivetrainParameters
 STABILITY_LIMIT = 0.5
 """Largest omega*h (and damping rate * h) a substep may take; both of the kernel's schemes are
 stable below 2 (:mod:`dtid.simulator.kernel`)."""
+MAX_SUBSTEPS = 1000
+"""Most substeps per angle step a parameter set may need: a mode this fast (about 30 kHz at the
+reference idle) is a unit slip, not a drivetrain; the default search box's corners need < 50."""
 QUADRATIC_RATE_RAD_S = 5.0
 """Relative DMF speed at which quadratic damping's slope is bounded for the step size, rad/s
 (a 10 Hz oscillation of 0.08 rad)."""
@@ -288,6 +291,11 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
         Parameters ordered as :data:`dtid.simulator.parameters.NAMES`.
     controller
         Gives the set-point, hence the step time.
+
+    Raises
+    ------
+    ConfigError
+        When more than :data:`MAX_SUBSTEPS` would be needed (a unit slip).
     """
     j1, j2, j3, c12, c23, d12, d23 = params[:7]
     j4 = c14 = d14 = 0.0
@@ -306,7 +314,15 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
         stiff, damp = max(stiff, 2 * c14 / j4), max(damp, 2 * d14 / j4)
     rate = max(math.sqrt(stiff), damp)
     longest_step = STEP_RAD / (MIN_SPEED_RATIO * controller.setpoint_rpm / RPM_PER_RAD_S)
-    return max(1, math.ceil(rate * longest_step / STABILITY_LIMIT))
+    needed = rate * longest_step / STABILITY_LIMIT
+    if not needed <= MAX_SUBSTEPS:
+        values = ", ".join(f"{name} {params[i]:g}" for i, name in enumerate(NAMES[:7]))
+        raise ConfigError(
+            f"the parameter set's fastest mode, {rate / (2 * math.pi):.3g} Hz, is beyond any "
+            f"drivetrain's ({values} in SI units: a stiffness or damping too large for its "
+            "inertias; check the units)"
+        )
+    return max(1, math.ceil(needed))
 
 
 def output_capacity(t_end: float, controller: IdleController) -> tuple[int, int]:

@@ -427,6 +427,41 @@ def test_identify_rejects_a_bad_fix(recording: Path, capsys: pytest.CaptureFixtu
 
 
 @pytest.mark.parametrize(
+    ("options", "why"),
+    [
+        (["--fix", "x1=1.5"], "--fix x1=1.5: x1 = 1.5 is the mass ratio J1/(J1+J2)"),
+        (["--fix", "x12=1"], "x12 = 1 is the mass ratio (J1+J2)/(J1+J2+J3)"),
+        (["--bounds", "x1=0:0.5"], "--bounds x1=0:0.5: x1 = 0 is the mass ratio"),
+        (["--fix", "J_sum=0"], "J_sum, the total inertia, must be > 0"),
+        (["--fix", "K=0"], "the engine gain K must be > 0"),
+    ],
+)
+def test_identify_refuses_a_mass_ratio_or_inertia_no_vehicle_has(
+    options: list[str], why: str, recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """x1 = 1.5 made J2 negative: the search ran for a minute and failed on "J2 = -0.065 is not
+    physical", a parameter the user had not given."""
+    assert why in _error(capsys, ["identify", str(recording), *options])
+
+
+def test_a_stiffness_no_drivetrain_has_is_named_not_a_scipy_traceback(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """c12 = 1e300 (a unit slip) overflowed the substep count inside scipy's differential
+    evolution, which re-raised it as "the map-like callable must be of the form f(func,
+    iterable)"."""
+    for option, value in (
+        (["--fix", "c12=1e300"], "c12 1e+300"),
+        (["--bounds", "c12=0:1e300"], ""),
+    ):
+        argv = ["identify", str(recording), *option, "--profile-points", "0"]
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("error: the parameter set's fastest mode"), option
+        assert value in err and "check the units" in err
+
+
+@pytest.mark.parametrize(
     ("command", "why"),
     [
         (["identify", "REC", "--seed", "-1"], "-1 must lie in 0 .. 4294967295"),

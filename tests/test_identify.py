@@ -370,3 +370,14 @@ def test_a_k_far_from_the_strokes_own_gives_way_to_theirs(vehicle: int, replaced
         assert f"--fix K={eq24:.4g}" in warning
     else:
         assert held == eq24
+
+
+def test_the_box_refuses_a_mass_ratio_outside_zero_to_one(reference: DrivetrainParameters) -> None:
+    """The API's Parameterization checks what the command line checks: x1 = 1 leaves J2 no
+    inertia and x1 > 1 a negative one; both failed only when a result was built."""
+    with pytest.raises(ConfigError, match="fixed x1: x1 = 1 is the mass ratio J1/"):
+        Parameterization.around(reference, 15.0, 0.9, fixed={"x1": 1.0})
+    with pytest.raises(ConfigError, match=r"bounds of x12: x12 = 1\.2 is the mass ratio"):
+        Parameterization.around(reference, 15.0, 0.9, bounds={"x12": (0.5, 1.2)})
+    box = Parameterization.around(reference, 15.0, 0.9, bounds={"x12": (0.5, 0.95)})
+    assert box.bounds_of("x12") == (0.5, 0.95)

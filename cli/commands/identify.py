@@ -31,7 +31,11 @@ from dtid.errors import ConfigError
 from dtid.identification.pipeline import OPERATING_POINT
 from dtid.identification.planning.design import DEFAULT_TARGETS_PERCENT, wider_than_targets
 from dtid.identification.search.identify import SearchSettings
-from dtid.identification.search.parameterization import PRIOR_SPAN, THETA_NAMES
+from dtid.identification.search.parameterization import (
+    PRIOR_SPAN,
+    THETA_NAMES,
+    check_theta_value,
+)
 from dtid.simulator.parameters import load_parameters, reference_parameters
 from dtid.workflow import identify
 
@@ -108,12 +112,15 @@ def parse_bounds(items: list[str]) -> dict[str, tuple[float, float]]:
         try:
             if not (sep and colon and name in THETA_NAMES):
                 raise ValueError
-            bounds[name] = (float(lower), float(upper))
+            ends = (float(lower), float(upper))
         except ValueError:
             raise ConfigError(
                 f"--bounds {item!r}: expected NAME=LOWER:UPPER in SI units (e.g. c12=100:600) "
                 f"with NAME one of {', '.join(THETA_NAMES)}"
             ) from None
+        for end in ends:
+            check_theta_value(name, end, f"--bounds {item}")
+        bounds[name] = ends
     return bounds
 
 
@@ -268,8 +275,12 @@ def parse_fixed(items: list[str]) -> dict[str, float]:
             value = float(text)
         except ValueError:
             raise ConfigError(f"--fix {item!r}: {text!r} is not a number") from None
-        if not (math.isfinite(value) and value >= 0):
+        if name in THETA_NAMES:
+            check_theta_value(name, value, f"--fix {item}")
+        elif not (math.isfinite(value) and value >= 0):
             raise ConfigError(f"--fix {item!r}: the value must be a finite number >= 0")
+        elif name == "K" and value == 0:
+            raise ConfigError(f"--fix {item!r}: the engine gain K must be > 0")
         if name in fixed:
             raise ConfigError(f"--fix gives {name} twice ({fixed[name]:g}, {text}): give it once")
         fixed[name] = value

@@ -73,7 +73,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-from dtid.errors import AnalysisError
+from dtid.errors import AnalysisError, DtidError
 from dtid.identification.model.response import ModelTest, model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.search.objective import nrmse, summed_nrmse
@@ -626,7 +626,25 @@ def _global_search(
     )
     for row, start in enumerate(starts):
         population[row] = start
-    result = optimize.differential_evolution(
+    try:
+        result = _differential_evolution(objective, n_free, settings, population, after_generation)
+    except RuntimeError as error:  # scipy wraps what the objective raised in its own message
+        if isinstance(error.__cause__, DtidError):
+            raise error.__cause__ from None
+        raise
+    return result.population, result.population_energies
+
+
+def _differential_evolution(
+    objective: Objective,
+    n_free: int,
+    settings: SearchSettings,
+    population: np.ndarray,
+    after_generation: Callable[[optimize.OptimizeResult], None],
+) -> optimize.OptimizeResult:
+    """scipy's differential evolution from ``population`` (normalised), as the global stage
+    runs it."""
+    return optimize.differential_evolution(
         lambda u: objective(u.T),
         [(0.0, 1.0)] * n_free,
         maxiter=settings.generations,
@@ -639,7 +657,6 @@ def _global_search(
         callback=after_generation,
         strategy="currenttobest1bin",  # each member keeps more of itself than in best1bin
     )
-    return result.population, result.population_energies
 
 
 def _unit_start(parameterization: Parameterization, start: Mapping[str, float]) -> np.ndarray:

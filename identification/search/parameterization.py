@@ -9,6 +9,7 @@ mean torque at idle. Any subset of theta can be fixed.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -62,6 +63,43 @@ EDGE_TOLERANCE = 1e-3
 """A result within this share of a parameter's box width from a bound ended on the box's edge
 (:meth:`Parameterization.at_edges`): the search's stages clip at the bounds, so a parameter
 pushed against one ends on it."""
+
+
+MASS_RATIOS = ("x1", "x12")
+"""The setup-4 parameters that are shares of an inertia: strictly between 0 and 1."""
+
+
+def check_theta_value(name: str, value: float, source: str) -> None:
+    """Refuse a setup-4 value outside its physical domain.
+
+    Every value is finite and >= 0, J_sum > 0 and the mass ratios x1, x12 lie strictly between
+    0 and 1 (at 0 or 1 an inertia vanishes; beyond, one is negative).
+
+    Parameters
+    ----------
+    name
+        One of :data:`THETA_NAMES`.
+    value
+        The value in :data:`THETA_UNITS`.
+    source
+        Where the value came from, for the message (``--fix x1=1.5``).
+
+    Raises
+    ------
+    ConfigError
+        Naming the value, its meaning and the domain.
+    """
+    unit = THETA_UNITS[name]
+    if not math.isfinite(value) or value < 0:
+        raise ConfigError(f"{source}: {name} must be a finite number >= 0 {unit}, got {value}")
+    if name == "J_sum" and value == 0:
+        raise ConfigError(f"{source}: J_sum, the total inertia, must be > 0 {unit}")
+    if name in MASS_RATIOS and not 0 < value < 1:
+        share = "J1/(J1+J2)" if name == "x1" else "(J1+J2)/(J1+J2+J3)"
+        raise ConfigError(
+            f"{source}: {name} = {value:g} is the mass ratio {share}: it lies strictly between "
+            "0 and 1"
+        )
 
 
 def passenger_car_bounds(
@@ -186,11 +224,16 @@ class Parameterization:
             i = THETA_NAMES.index(name)
             lower[i] = max(lower[i], MIN_INERTIA_FRACTION)
             upper[i] = min(upper[i], 1 - MIN_INERTIA_FRACTION)
+        for name, value in fixed.items():
+            check_theta_value(name, value, f"fixed {name}")
         for name, (lo, hi) in bounds.items():
             if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo < hi):
                 raise ConfigError(
                     f"bounds of {name} must satisfy 0 <= lower < upper, got {lo}, {hi}"
                 )
+            if name in MASS_RATIOS:
+                check_theta_value(name, lo, f"bounds of {name}")
+                check_theta_value(name, hi, f"bounds of {name}")
             i = THETA_NAMES.index(name)
             lower[i], upper[i] = lo, hi
         return cls(
