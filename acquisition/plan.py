@@ -21,6 +21,11 @@ import numpy as np
 
 from dtid.errors import ConfigError
 
+MAX_TEST_S = 3600.0
+"""Longest test a plan may describe, s: an hour at idle holds any chirp test worth running (the
+paper's takes 3 minutes); a longer one is a slip of the unit (``--duration 1e6``), which the
+simulator would otherwise compute for days."""
+
 CHIRP_COLUMNS = ("start_s", "duration_s", "f1_hz", "f2_hz", "amplitude_nm")
 """Columns of the chirp schedule array the simulator kernel takes."""
 
@@ -117,6 +122,19 @@ class TestPlan:
             raise ConfigError(
                 f"test plan: f2 = {self.f2_hz} Hz is not below the Nyquist frequency of a "
                 f"request every {self.request_period_s} s"
+            )
+        if self.duration_s * self.f1_hz < 1:
+            raise ConfigError(
+                f"test plan: a chirp of {self.duration_s:g} s holds less than one period of its "
+                f"start frequency {self.f1_hz:g} Hz; give a duration of at least "
+                f"{1 / self.f1_hz:g} s (the paper's is 60 s)"
+            )
+        length = self.settle_s + len(self.levels) * (self.duration_s + self.pause_s)
+        if length > MAX_TEST_S:
+            raise ConfigError(
+                f"test plan: its {len(self.levels)} chirps of {self.duration_s:g} s with their "
+                f"pauses take {length:g} s, more than the {MAX_TEST_S:g} s a test at idle may "
+                "(check the unit: durations are in seconds)"
             )
         chirps = []
         start = self.settle_s

@@ -319,7 +319,7 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
 def load_signal_map(path: str | os.PathLike[str]) -> SignalMap:
     """Load a signal map from a TOML file.
 
-    Maps that lack roles are accepted; see :meth:`SignalMap.require`.
+    Maps that lack roles are accepted (see :meth:`SignalMap.require`); an empty one is not.
 
     Parameters
     ----------
@@ -350,6 +350,11 @@ def load_signal_map(path: str | os.PathLike[str]) -> SignalMap:
         raise ConfigError(f"cannot read signal map {source}: {error.strerror or error}") from error
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
         raise ConfigError(f"signal map {source} is not valid TOML: {error}") from error
+    if not document:
+        raise ConfigError(
+            f"signal map {source} maps no role: it needs a table for each of "
+            f"{', '.join(REQUIRED_ROLES)} (see dbc/drivetrain_signals.toml for the format)"
+        )
     roles: dict[str, RoleSpec] = {}
     for role, table in document.items():
         if role not in ROLES:

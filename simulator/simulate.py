@@ -325,6 +325,29 @@ def substeps(params: np.ndarray, controller: IdleController) -> int:
     return max(1, math.ceil(needed))
 
 
+def _left_idle(t_s: float, plan: TestPlan) -> str:
+    """Why a simulated engine left its speed band at ``t_s`` s: the chirp it was driven by when
+    the engine had idled through a smaller one, else the parameter set (or either)."""
+    what = f"the simulated engine left {MIN_SPEED_RATIO}..{MAX_SPEED_RATIO} times its idle "
+    what += f"set-point at t = {t_s:.2f} s"
+    during = [c for c in plan.chirps if c.start_s <= t_s <= c.end_s + plan.pause_s]
+    if not during:
+        return f"{what}, at idle: this parameter set cannot idle (check the inertias, T_loss and K)"
+    chirp = during[0]
+    held = [c.amplitude_nm for c in plan.chirps if c.end_s < chirp.start_s]
+    if held and min(held) < chirp.amplitude_nm:
+        return (
+            f"{what}, during the {chirp.amplitude_nm:g} N*m chirp after it idled through the "
+            f"{min(held):g} N*m one: that test torque is more than this engine's idle can hold; "
+            "give a smaller amplitude"
+        )
+    return (
+        f"{what}, during the {chirp.amplitude_nm:g} N*m chirp: either that test torque is more "
+        "than this engine's idle can hold (try a smaller amplitude) or this parameter set cannot "
+        "idle (check the inertias, T_loss and K)"
+    )
+
+
 def output_capacity(t_end: float, controller: IdleController) -> tuple[int, int]:
     """Output rows needed for the speed and stroke events of ``t_end`` s at the highest
     admitted speed (a few more than that, so a run's last partial step always fits)."""
@@ -383,11 +406,7 @@ def simulate(
     )
     n_speed, n_torque, status = run_plant(options.loop(request_t, request_nm), job, plan.end_s)
     if status == STATUS_SPEED_RANGE:
-        raise AnalysisError(
-            f"the simulated engine left {MIN_SPEED_RATIO}..{MAX_SPEED_RATIO} times its idle "
-            f"set-point at t = {out_speed[max(n_speed - 1, 0), 0]:.2f} s: this parameter set "
-            "cannot idle (check the inertias, T_loss and K)"
-        )
+        raise AnalysisError(_left_idle(out_speed[max(n_speed - 1, 0), 0], plan))
     if status != STATUS_OK:
         raise RuntimeError(f"simulator kernel ended with status {status}")
     return SimulationResult.from_outputs(

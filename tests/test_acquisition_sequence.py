@@ -112,3 +112,24 @@ def test_tool_states_are_the_dbc_value_table() -> None:
 def test_request_the_dbc_cannot_carry_is_refused_before_the_test() -> None:
     with pytest.raises(ConfigError, match="TestTorque"):
         ToolFrames(INTERFACE, TestPlan(amplitudes_nm=(400.0,), validation_nm=0.0))
+
+
+@pytest.mark.parametrize(
+    ("fields", "why"),
+    [
+        ({"duration_s": 0.5}, "a chirp of 0.5 s holds less than one period of its start frequency"),
+        ({"duration_s": 0.5, "f1_hz": 2.0}, None),  # one period of 2 Hz: a (short) chirp
+        ({"duration_s": 1e6}, "take 3.00001e+06 s, more than the 3600 s a test at idle may"),
+        ({"pause_s": 1200.0}, "more than the 3600 s"),
+    ],
+)
+def test_a_plan_shorter_than_a_period_or_longer_than_an_hour_is_refused(
+    fields: dict[str, float], why: str | None
+) -> None:
+    """`dtid simulate --duration 1e6` computed for days; `--duration 0.01` wrote a recording
+    of chirps that sweep nothing."""
+    if why is None:
+        assert TestPlan(**fields).chirps[0].duration_s == fields["duration_s"]
+        return
+    with pytest.raises(ConfigError, match=why.replace("+", r"\+")):
+        TestPlan(**fields)

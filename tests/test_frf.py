@@ -136,6 +136,15 @@ def test_a_chirp_too_short_for_the_resolution_is_refused() -> None:
     estimate_frf(data, run, resolution_hz=1.0)  # coarser resolution: fine
 
 
+def test_a_resolution_coarser_than_the_sweep_is_named() -> None:
+    """`dtid frf --resolution 100` said "band 51.01-35.01 Hz is not inside the chirp's sweep", a
+    band the user had not given."""
+    data = _data(20.0)
+    run = find_runs(data.test_torque)[0]
+    with pytest.raises(AnalysisError, match=r"a 100 Hz resolution is too coarse for the chirp"):
+        estimate_frf(data, run, resolution_hz=100.0)
+
+
 def test_a_gap_in_the_speed_is_refused() -> None:
     data = _data(20.0, gap_at=10.0)
     with pytest.raises(AnalysisError, match=r"0\.525 s gap"):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dtid.acquisition.plan import TestPlan
-from dtid.errors import AnalysisError
+from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.frf.closed_loop import FrfEstimate, estimate_frf
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.frf.sensor_response import stroke_hold_gain
@@ -224,6 +224,27 @@ def test_a_parameter_set_that_cannot_idle_is_refused(reference: DrivetrainParame
     stalling = reference.replace(T_loss=2000.0)
     with pytest.raises(AnalysisError, match="cannot idle"):
         simulate(stalling, TestPlan(amplitudes_nm=(5.0,), validation_nm=0.0, duration_s=5.0))
+
+
+def test_an_amplitude_the_idle_cannot_hold_is_named_not_the_parameters(
+    reference: DrivetrainParameters,
+) -> None:
+    """`dtid simulate --amplitudes 5 400` blamed the inertias, T_loss and K for the 400 N*m
+    chirp, after the engine had idled through the 5 N*m one."""
+    plan = TestPlan(amplitudes_nm=(5.0, 400.0), validation_nm=0.0, duration_s=5.0)
+    with pytest.raises(
+        AnalysisError, match=r"during the 400 N.m chirp after it idled through the 5"
+    ):
+        simulate(reference, plan)
+
+
+def test_a_mode_no_drivetrain_has_is_refused_not_integrated(
+    reference: DrivetrainParameters,
+) -> None:
+    """c12 = 1e300 (a unit slip) overflowed the substep count; 1e12 would have taken hours."""
+    for c12 in (1e12, 1e300):
+        with pytest.raises(ConfigError, match=r"fastest mode.*check the units"):
+            simulate(reference.replace(c12=c12), TestPlan(amplitudes_nm=(5.0,), duration_s=2.0))
 
 
 def test_stiff_parameter_sets_stay_stable(reference: DrivetrainParameters) -> None:

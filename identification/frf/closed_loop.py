@@ -241,6 +241,12 @@ def estimate_frf(
         edge = sweep_edge_hz(run, resolution_hz)
         lo = min(run.f1_hz, run.f2_hz) + edge
         hi = min(max(run.f1_hz, run.f2_hz) - edge, 0.98 * torque_nyquist)
+        if hi <= lo:
+            raise AnalysisError(
+                f"a {resolution_hz:g} Hz resolution is too coarse for the chirp's "
+                f"{run.f1_hz:.2f}-{run.f2_hz:.2f} Hz sweep (run at {run.start_s:.1f} s): its "
+                "edges, half a bin each, leave no band; ask for a finer resolution"
+            )
     else:
         lo, hi = band_hz
     sweep_lo, sweep_hi = sorted((run.f1_hz, run.f2_hz))

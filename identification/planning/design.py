@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 
 from dtid.acquisition.config import SafetyConfig
-from dtid.acquisition.plan import TestPlan, in_rounds
+from dtid.acquisition.plan import MAX_TEST_S, TestPlan, in_rounds
 from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.frf.closed_loop import sweep_edge_hz
 from dtid.identification.frf.runs import ChirpRun
@@ -722,6 +722,10 @@ def plan_test(
     }
     if len(amplitudes) - len(excluded) < 2:  # refused before a minute of simulations
         raise _too_few_amplitudes(excluded)
+    if max_time_s > MAX_TEST_S:  # a plan that long would be refused once recommended
+        raise ConfigError(
+            f"--max-time {max_time_s:g} s: a test at idle may take at most {MAX_TEST_S:g} s"
+        )
     if not recorded and max_time_s < shortest_test_s(validation_nm):  # recorded may suffice
         raise _nothing_fits(max_time_s, validation_nm)
     centre, notes = planning_prior(prior)
