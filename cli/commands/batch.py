@@ -6,7 +6,8 @@ identified as ``dtid identify`` does (and with ``--diagnose`` located as ``dtid 
 scheduler (``--scheduler``). Writes ``OUT/fleet.csv`` (vehicle, date, parameters, intervals,
 verdicts, NRMSEs per test), ``OUT/tests/*.json``, and the fleet view ``OUT/fleet.png`` /
 ``OUT/fleet.html`` (trends per vehicle, outliers against the fleet). Needs Dask:
-``pip install 'drivetrain-id[fleet]'``.
+``pip install 'drivetrain-id[fleet]'``. Exit status 0: every test identified; 1: one or more
+failed (their rows say why; the table and view are written all the same); 2: usage error.
 """
 
 from __future__ import annotations
@@ -79,4 +80,4 @@ def run(args: argparse.Namespace) -> int:
     rows = run_batch(tests, options, args.out, args.scheduler, args.workers, report=print)
     failed = sum(row["status"] != "ok" for row in rows)
     print(f"{len(rows)} test(s), {failed} failed: {args.out / TABLE}, {args.out / 'fleet.html'}")
-    return 0
+    return 1 if failed else 0
