@@ -51,8 +51,9 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> dict:
         "(0.000000) can0 1A0#0000000000000000\n(0.010000) can0 1A0#0000000000000000\n"
     )
     out = root / "out"
+    # exit status 1: one test (the broken one) failed
     assert main(["batch", *map(str, tests), str(broken), "--out", str(out), "--workers", "2",
-                 "--diagnose", "--fix", *FREE, *BUDGET]) == 1  # fmt: skip (1: one failed)
+                 "--diagnose", "--fix", *FREE, *BUDGET]) == 1  # fmt: skip
     with (out / "fleet.csv").open() as file:
         rows = list(csv.DictReader(file))
     return {"tests": tests, "broken": broken, "out": out, "rows": rows}

@@ -20,6 +20,7 @@ from dtid.identification.frf.runs import find_runs
 from dtid.identification.frf.sensor_response import speed_filter_gain, torque_hold_gain
 from dtid.identification.samples.testdata import Series, TestData, from_simulation
 from dtid.simulator.angle_grid import N_WIN, step_time
+from dtid.simulator.controller import IdleController
 from dtid.simulator.mechanisms import Effects
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -164,6 +165,32 @@ def test_a_run_the_speed_does_not_follow_is_refused() -> None:
     run = find_runs(data.test_torque)[0]
     assert np.median(estimate_frf(data, run).coherence) > 0.9
     with pytest.raises(AnalysisError, match=r"median coherence of 0\.0\d.*was disturbed"):
+        estimate_frf(unrelated, run)
+
+
+def test_a_chirp_folded_by_the_strokes_is_not_taken_for_a_disturbed_test(
+    reference: DrivetrainParameters,
+) -> None:
+    """At a 650 rpm idle the strokes come at 21.7 Hz: a chirp swept to 20 Hz folds its upper
+    half into the band (f_s - f), in the torque and the speed but not in the tool's test torque,
+    and the median coherence falls below 0.5. `dtid identify` refused such a test as disturbed
+    ("repeat it"), which would have given the same; the run is judged by the test torque as the
+    strokes took it instead. Speed and torque that follow nothing are still refused."""
+    plan = TestPlan(amplitudes_nm=(2.0,), validation_nm=0.0, f1_hz=0.5, f2_hz=20.0)
+    options = SimulationOptions(controller=IdleController(setpoint_rpm=650.0))
+    data = from_simulation(simulate(reference, plan, options, seed=3))
+    run = find_runs(data.test_torque)[0]
+    estimate = estimate_frf(data, run)
+    assert np.median(estimate.coherence) < 0.5  # against what the tool sent
+    assert estimate.frequency_hz[-1] < 0.5 * 650 / 60 * 2  # below the strokes' Nyquist
+    noise = np.random.default_rng(0).standard_normal
+    speed, torque = data.speed, data.mean_torque
+    unrelated = TestData(
+        Series(speed.t, 650 + noise(len(speed))),
+        Series(torque.t, 15 + noise(len(torque))),
+        data.test_torque,
+    )
+    with pytest.raises(AnalysisError, match="was disturbed"):
         estimate_frf(unrelated, run)
 
 
