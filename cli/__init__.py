@@ -7,48 +7,43 @@ and exit status 2; ``--debug`` shows the traceback instead.
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import os
 import sys
 from collections.abc import Sequence
+from types import ModuleType
 
-from dtid.cli.commands import (
-    acquire,
-    batch,
-    demo,
-    diagnose,
-    frf,
-    identify,
-    inspect,
-    keys,
-    monitor,
-    plan,
-    profile,
-    report,
-    simulate,
-    vehicle,
-    worker,
-)
 from dtid.errors import DtidError
 
-COMMANDS = (
-    demo,
-    simulate,
-    inspect,
-    frf,
-    identify,
-    diagnose,
-    report,
-    batch,
-    plan,
-    profile,
-    acquire,
-    worker,
-    monitor,
-    vehicle,
-    keys,
+COMMAND_NAMES = (
+    "demo",
+    "simulate",
+    "inspect",
+    "frf",
+    "identify",
+    "diagnose",
+    "report",
+    "batch",
+    "plan",
+    "profile",
+    "acquire",
+    "worker",
+    "monitor",
+    "vehicle",
+    "keys",
 )
+"""The subcommands, in the order ``dtid -h`` lists them: one module each in
+:mod:`dtid.cli.commands`, imported by :func:`command_modules` inside :func:`main` (numpy, scipy
+and numba take seconds to load, and a Ctrl-C meanwhile must end as "interrupted", not as a
+traceback)."""
 EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def command_modules() -> tuple[ModuleType, ...]:
+    """The subcommands' modules, in the order of :data:`COMMAND_NAMES`."""
+    return tuple(importlib.import_module(f"dtid.cli.commands.{name}") for name in COMMAND_NAMES)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,15 +55,18 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     parser.add_argument("-v", "--verbose", action="store_true", help="log more detail")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for command in COMMANDS:
+    for command in command_modules():
         command.add_parser(subparsers)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``dtid`` with the given arguments; return the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except KeyboardInterrupt:  # while the commands' libraries load
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="%(levelname)s: %(message)s",
@@ -83,7 +81,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     except BrokenPipeError:  # the reader went away (`dtid inspect X | head`): stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141

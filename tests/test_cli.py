@@ -602,3 +602,19 @@ def test_the_progress_bar_keeps_a_log_file_readable() -> None:
     ]
     bar.finish()  # before the result is printed: the last bar stopped early
     assert screen.getvalue().endswith("50/150 objective 0.1800\n")
+
+
+def test_ctrl_c_while_the_libraries_load_says_interrupted(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The commands' modules load numpy, scipy and numba for seconds; an operator's Ctrl-C then
+    (a just-started `dtid acquire` aborted) was a traceback through importlib. The commands
+    are now imported inside main(), where the interrupt is caught."""
+    import dtid.cli
+
+    def interrupted() -> tuple:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dtid.cli, "command_modules", interrupted)
+    assert main(["acquire", "--help"]) == 130
+    assert capsys.readouterr().err == "interrupted\n"
