@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from dtid.acquisition.clock import MAX_TIME_FACTOR
 from dtid.acquisition.plan import PLAN_FILE_KEYS, TestPlan, in_rounds, plan_from_file
 from dtid.acquisition.recorder import SUFFIXES
 from dtid.errors import ConfigError
@@ -260,6 +261,22 @@ def _convert(where: str, default: Any, value: Any, base: Path) -> Any:
     return value
 
 
+MAX_VEHICLE_TIMEOUT_WALL_S = 2.0
+"""Longest ``[safety] vehicle_timeout_s`` in wall time (bus time over ``[bus] time_factor``), s:
+a speed frame comes every crank event (15 ms at idle), and a daemon that goes on requesting test
+torque for seconds from a vehicle it no longer hears is not in control (200, a timeout typed in
+ms, kept a dead vehicle's chirp going for 22 s and ended "completed")."""
+MAX_SPEED_WINDOW_RPM = 500.0
+"""Widest ``[safety] speed_window_rpm``: half a 1000 rpm idle; a wider window lets the engine all
+but stall, or run away, before the abort."""
+MAX_FLUSH_PERIOD_S = 10.0
+"""Longest ``[output] flush_period_s``: the frames a crash can cost."""
+MAX_BLOCK_PERIOD_S = 1.0
+"""Longest ``[pipeline] block_period_s``: the worker's and monitor's lag behind the bus."""
+MAX_BITRATE = 8_000_000
+"""Highest ``[bus] bitrate``, bit/s (CAN FD's data phase)."""
+
+
 def _check(config: AcquisitionConfig) -> None:
     """Range checks that need more than a type."""
     positive = {
@@ -274,6 +291,28 @@ def _check(config: AcquisitionConfig) -> None:
             value = getattr(getattr(config, section), name)
             if not (math.isfinite(value) and value > 0):
                 raise ConfigError(f"[{section}] {name} must be > 0, got {value}")
+    factor = config.bus.time_factor
+    upper = {
+        ("bus", "time_factor"): (MAX_TIME_FACTOR, "beyond, the host sets the test's timing"),
+        ("safety", "vehicle_timeout_s"): (
+            MAX_VEHICLE_TIMEOUT_WALL_S * factor,
+            "check the unit: seconds of bus time",
+        ),
+        ("safety", "speed_window_rpm"): (MAX_SPEED_WINDOW_RPM, "a stall would pass unnoticed"),
+        ("output", "flush_period_s"): (MAX_FLUSH_PERIOD_S, "a crash would cost that much"),
+        ("pipeline", "block_period_s"): (MAX_BLOCK_PERIOD_S, "check the unit: seconds"),
+    }
+    for (section, name), (limit, why) in upper.items():
+        value = getattr(getattr(config, section), name)
+        if value > limit:
+            raise ConfigError(f"[{section}] {name} = {value:g} is above {limit:g}: {why}")
+    for name in ("bitrate", "receive_buffer_bytes"):
+        if getattr(config.bus, name) <= 0:
+            raise ConfigError(f"[bus] {name} must be > 0, got {getattr(config.bus, name)}")
+    if config.bus.bitrate > MAX_BITRATE:
+        raise ConfigError(
+            f"[bus] bitrate = {config.bus.bitrate} is above {MAX_BITRATE} bit/s, CAN FD's fastest"
+        )
     for name in ("max_time_s", "replan_wait_s"):
         value = getattr(config.campaign, name)
         if not (math.isfinite(value) and value > 0):

@@ -24,6 +24,7 @@ from threading import Event
 import can
 import numpy as np
 
+from dtid.acquisition.clock import MAX_TIME_FACTOR
 from dtid.dbc.ecu_requests import RequestReceiver
 from dtid.dbc.interface import VehicleInterface
 from dtid.errors import ConfigError
@@ -163,8 +164,11 @@ class VirtualVehicle:
         faults: BusFaults | None = None,
         setpoint_step: SetpointStep | None = None,
     ) -> None:
-        if not (math.isfinite(speedup) and speedup > 0):
-            raise ConfigError(f"speedup must be > 0, got {speedup}")
+        if not (math.isfinite(speedup) and 0 < speedup <= MAX_TIME_FACTOR):
+            raise ConfigError(
+                f"speedup must lie in (0, {MAX_TIME_FACTOR:g}], got {speedup:g}: beyond, the "
+                "plant and the bus cannot keep pace"
+            )
         self.bus = bus
         self.plant = plant
         self.speedup = speedup

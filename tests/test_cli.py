@@ -508,6 +508,11 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
         (["report", "REC", "-o", "REC"], "is a CAN recording"),
         (["report", "REC", "-o", "report.pdf"], "the report is one HTML page"),
         (["identify", "REC", "--plot", "fit.txt"], "cannot plot to fit.txt: give a file name"),
+        (["vehicle", "--report", "REC"], "is a CAN recording"),  # it wrote the report over it
+        (["vehicle", "--report", "REC.json"], "holds the metadata of the recording"),
+        (["worker", "--json", "REC"], "is a CAN recording"),
+        (["worker", "--plot", "missing/fit.png"], "the folder missing does not exist"),
+        (["vehicle", "--speedup", "1e9"], "1e9 is above 20"),  # Ctrl-C could not stop it
     ],
 )
 def test_an_output_nowhere_to_write_is_refused_before_the_work(

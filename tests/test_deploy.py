@@ -29,6 +29,7 @@ from dtid.acquisition.config import (
 )
 from dtid.acquisition.stream import ABORT_REASONS
 from dtid.cli import build_parser
+from dtid.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 DEPLOY = ROOT / "deploy"
@@ -415,3 +416,33 @@ def test_operator_guide_covers_every_abort_reason_and_the_envelope() -> None:
         assert field.name in guide
     for needed in ("dtid identify", "setup-can.sh", "parking brake", "neutral"):
         assert needed in guide
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ("[safety]\nvehicle_timeout_s = 200\n", "vehicle_timeout_s = 200 is above 2"),
+        ("[bus]\ntime_factor = 10\n[safety]\nvehicle_timeout_s = 5\n", None),  # 0.5 s of wall
+        ("[safety]\nspeed_window_rpm = 1e9\n", "speed_window_rpm = 1e+09 is above 500"),
+        ("[output]\nflush_period_s = 1e9\n", "flush_period_s = 1e+09 is above 10"),
+        ("[bus]\ntime_factor = 1e9\n", "time_factor = 1e+09 is above 20"),
+        ("[bus]\nbitrate = -5\n", "bitrate must be > 0, got -5"),
+        ("[bus]\nbitrate = 500000000\n", "above 8000000 bit/s"),
+        ("[bus]\nreceive_buffer_bytes = -1\n", "receive_buffer_bytes must be > 0"),
+        ("[pipeline]\nblock_period_s = 2\n", "block_period_s = 2 is above 1"),
+    ],
+)
+def test_a_value_no_test_can_run_with_is_refused(
+    text: str, why: str | None, tmp_path: Path
+) -> None:
+    """A vehicle timeout typed in ms (200) kept a dead vehicle's chirp going for 22 s, which
+    then ended "completed"; a window of 1e9 rpm switched the speed check off, a flush period
+    of 1e9 s the crash safety, a time factor of 1e9 made the vehicle compute days of bus time
+    in one step Ctrl-C could not stop. All were taken without a word."""
+    path = tmp_path / "dtid.toml"
+    path.write_text(text)
+    if why is None:
+        assert load_config(path).safety.vehicle_timeout_s == 5
+        return
+    with pytest.raises(ConfigError, match=re.escape(why)):
+        load_config(path)

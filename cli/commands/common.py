@@ -11,6 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TextIO
 
+from dtid.acquisition.clock import MAX_TIME_FACTOR
 from dtid.acquisition.logfile import SUPPORTED_SUFFIXES
 from dtid.acquisition.metadata import sidecar_path
 from dtid.errors import ConfigError
@@ -114,6 +115,17 @@ def non_negative_float(text: str) -> float:
 def positive_float(text: str) -> float:
     """argparse type: a finite number > 0."""
     return _finite_float(text, positive=True)
+
+
+def speedup(text: str) -> float:
+    """argparse type: bus time per wall time, in (0, :data:`MAX_TIME_FACTOR`]."""
+    value = positive_float(text)
+    if value > MAX_TIME_FACTOR:
+        raise argparse.ArgumentTypeError(
+            f"{text} is above {MAX_TIME_FACTOR:g}: a virtual vehicle faster than that does not "
+            "keep pace with the bus"
+        )
+    return value
 
 
 def _finite_float(text: str, positive: bool) -> float:

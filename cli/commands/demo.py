@@ -30,7 +30,7 @@ from dtid.acquisition.config import (
 )
 from dtid.acquisition.daemon import Daemon
 from dtid.acquisition.plan import TestPlan, plan_from_file
-from dtid.cli.commands.common import positive_float, seed
+from dtid.cli.commands.common import seed, speedup
 from dtid.cli.commands.frf import summary_line
 from dtid.dbc.loader import load_interface
 from dtid.errors import AnalysisError, RecordingError
@@ -77,7 +77,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--speedup",
-        type=positive_float,
+        type=speedup,
         default=DEFAULT_SPEEDUP,
         help="bus time per wall time (default: %(default)s)",
     )

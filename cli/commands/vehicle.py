@@ -11,7 +11,7 @@ from threading import Event
 
 from dtid.acquisition.bus import open_bus
 from dtid.acquisition.config import load_config
-from dtid.cli.commands.common import positive_float, seed
+from dtid.cli.commands.common import output_file, positive_float, seed, speedup
 from dtid.dbc.loader import load_interface
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
@@ -39,7 +39,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--speedup",
-        type=positive_float,
+        type=speedup,
         help="bus time per wall time (default: [bus] time_factor of the configuration)",
     )
     parser.add_argument("--duration", type=positive_float, help="bus seconds to run, then stop")
@@ -62,7 +62,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar=("AT_S", "RPM"),
         help="move the idle set-point to RPM at bus time AT_S (drives the speed out of window)",
     )
-    parser.add_argument("--report", type=Path, help="write what the vehicle did as JSON")
+    parser.add_argument("--report", type=output_file, help="write what the vehicle did as JSON")
     parser.set_defaults(run=run)
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from dtid.acquisition.config import load_config
-from dtid.cli.commands.common import add_vehicle_option, vehicle_data
+from dtid.cli.commands.common import add_vehicle_option, output_file, plot_file, vehicle_data
 from dtid.cli.commands.identify import add_search_options, print_report, search_settings
 from dtid.errors import ConfigError
 from dtid.identification.planning.spread import DEFAULT_VEHICLES
@@ -43,10 +43,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_vehicle_option(parser)
     add_search_options(parser)
     parser.add_argument(
-        "--json", type=Path, help="result file (default: identification.json beside the log)"
+        "--json",
+        type=output_file,
+        help="result file (default: identification.json beside the log)",
     )
     parser.add_argument(
-        "--plot", type=Path, help="Fig. 6 plot (default: identification.png beside the log)"
+        "--plot",
+        type=plot_file,
+        help="Fig. 6 plot (default: identification.png beside the log)",
     )
     parser.add_argument("--no-plot", action="store_true", help="do not plot")
     parser.add_argument(
