@@ -252,14 +252,15 @@ def _serve(
 
 
 def _serve_unpaced(
-    events: list[dict[str, Any]], folder: Path
+    events: list[dict[str, Any]], folder: Path, json_path: Path | None = None
 ) -> tuple[int, list[tuple[str, dict[str, Any]]], Worker]:
-    """:func:`_serve` on the events, sent at once; the result goes to ``folder/r.json``."""
+    """:func:`_serve` on the events, sent at once; the result goes to ``json_path``
+    (``folder/r.json`` by default)."""
     pipeline = _pipeline(folder)
     daemon = FakeDaemon(pipeline, events)
     daemon.go.set()
     options = WorkerOptions(
-        settings=BUDGET, profile_points=0, json_path=folder / "r.json", plot=False
+        settings=BUDGET, profile_points=0, json_path=json_path or folder / "r.json", plot=False
     )
     try:
         return _serve(pipeline, options)
@@ -471,6 +472,20 @@ def test_aborted_before_the_identification_chirps_end(
         "status": "aborted",
         "reason": "speed_window",
     }
+
+
+def test_a_result_that_cannot_be_written_ends_once_with_status_2(
+    session: SimulatedSession, ipc_dir: Path, tmp_path: Path
+) -> None:
+    """`dtid worker --once --json DIR/id.json` whose folder went away during the test had
+    published its result, failed to write it, and exited 0: a script took it for done."""
+    events = _aborted(session, session.chirp_ends_s[2] - 8.0)
+    gone = tmp_path / "gone" / "id.json"  # `dtid worker` refuses this when read; a folder
+    status, messages, worker = _serve_unpaced(events, ipc_dir, gone)  # removed meanwhile
+    assert status == 2 and worker.unwritten == {"s1"}
+    assert [d for t, d in messages if t == "result"]  # published all the same
+    errors = [d["message"] for t, d in messages if t == "progress" and d["stage"] == "error"]
+    assert any(str(gone) in message for message in errors), errors
 
 
 def test_aborted_in_the_validation_chirp_identifies_without_validation(

@@ -17,6 +17,21 @@ from dtid.acquisition.config import load_config
 from dtid.cli.commands.common import positive_float
 from dtid.identification.service.monitor import run_monitor
 
+MAX_REFRESH_S = 10.0
+"""Slowest redraw: a test's phase lasts seconds (a refresh of 500 was 500 ms typed as s, and one
+above 2.1e6 s overflowed ZeroMQ's poll)."""
+
+
+def refresh(text: str) -> float:
+    """argparse type: the redraw period, s, in (0, :data:`MAX_REFRESH_S`]."""
+    value = positive_float(text)
+    if value > MAX_REFRESH_S:
+        raise argparse.ArgumentTypeError(
+            f"{text} s is above {MAX_REFRESH_S:g} s (the period is in seconds: 0.5 redraws "
+            "twice a second)"
+        )
+    return value
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     """Register the subcommand."""
@@ -25,7 +40,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--config", type=Path, help="configuration file (TOML; default: defaults)")
     parser.add_argument(
-        "--refresh", type=positive_float, default=0.5, metavar="S", help="redraw period, s"
+        "--refresh", type=refresh, default=0.5, metavar="S", help="redraw period, s"
     )
     parser.add_argument(
         "--until-finished",

@@ -228,6 +228,8 @@ class Worker:
         self.current: _Session | None = None
         self.finished: dict[str, str] = {}
         """Status of each session served: ``completed``, ``aborted`` or ``error``."""
+        self.unwritten: set[str] = set()
+        """Sessions whose result could not be written (published all the same)."""
         self._outbox: queue.SimpleQueue[tuple[str, dict[str, Any]]] = queue.SimpleQueue()
         self._req: zmq.Socket | None = None
         self._security = Security(self.pipeline.keys, self.context)
@@ -251,7 +253,8 @@ class Worker:
         Returns
         -------
         int
-            0, or 2 when ``once`` and the session's analysis failed.
+            0, or 2 when ``once`` and the session's analysis failed or its result could not be
+            written.
         """
         stop = stop or threading.Event()
         sub = self.context.socket(zmq.SUB)
@@ -290,7 +293,8 @@ class Worker:
                 self._ask_if_needed()
                 self._flush()
                 if once and self.finished:
-                    return 2 if "error" in self.finished.values() else 0
+                    failed = "error" in self.finished.values() or self.unwritten
+                    return 2 if failed else 0
             return 0
         finally:
             for thread in self._report_threads:  # bounded: each waits CLOSE_WAIT_S at most
@@ -680,6 +684,7 @@ class Worker:
                 plot_fit(*report.fit_curves(), plot_path)
                 written.append(str(plot_path))
         except DtidError as error:
+            self.unwritten.add(session.id)
             self._progress(session, "error", message=str(error))
             return
         stage = "validated" if document["nrmse"]["validation"] else "done"
