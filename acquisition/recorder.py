@@ -43,7 +43,7 @@ import re
 import threading
 import time
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import IO, Any, BinaryIO
 
 import can
 from can.io.blf import FILE_HEADER_SIZE
@@ -184,7 +184,8 @@ class Recorder:
             raise RecordingError(f"log {path} exists already; it is never overwritten")
         self.journal = journal_path(path) if suffix == ".mf4" else None
         written = self.journal or path
-        mode, encoding = ("xb", None) if written.suffix == ".blf" else ("x", "ascii")
+        # readable too: a log removed while it is written is copied back from it (_rescue)
+        mode, encoding = ("x+b", None) if written.suffix == ".blf" else ("x+", "ascii")
         try:
             file = written.open(mode, encoding=encoding)
         except FileExistsError as error:
@@ -264,7 +265,29 @@ class Recorder:
         except OSError as error:
             self._fail(error)
             return
+        if _removed(writer.file):
+            self._rescue()
+            return
         self._sync.request()
+
+    def _rescue(self) -> None:
+        """The log was removed while it was written (its folder deleted): the frames so far,
+        still in the open file, are written back to its path, and the recorder fails, so that
+        the daemon stops the test (``log_write``). Writing on would record into a file nobody
+        can open: a test that then said "completed" had left nothing on disk."""
+        written = self.journal or self.path
+        file = self._writer.file
+        try:
+            written.parent.mkdir(parents=True, exist_ok=True)
+            with written.open("xb") as copy:
+                _copy_open_file(file.fileno(), copy.fileno())
+                os.fsync(copy.fileno())
+        except OSError as error:
+            kept = f"the {self.frames} frames written could not be saved: {error.strerror or error}"
+        else:
+            kept = f"the {self.frames} frames written before were saved to it again"
+        self.failure = f"the log {written} was removed while the test recorded it; {kept}"
+        logger.error("%s", self.failure)
 
     def close(self) -> None:
         """Complete the file (BLF header with the true size, ASC end line), close and sync it;
@@ -329,6 +352,23 @@ class Recorder:
         journal.unlink()
         sidecar_path(journal).unlink(missing_ok=True)
         logger.info("wrote %s (%d frames) from its journal", self.path, held)
+
+
+def _removed(file: IO[Any]) -> bool:
+    """Whether an open file no longer has a name in any folder (it, or its folder, was
+    removed)."""
+    return os.fstat(file.fileno()).st_nlink == 0
+
+
+def _copy_open_file(source: int, target: int) -> None:
+    """Copy the whole content of the open file ``source`` to ``target`` (file descriptors)."""
+    offset, size = 0, os.fstat(source).st_size
+    while offset < size:
+        chunk = os.pread(source, min(1 << 20, size - offset), offset)
+        if not chunk:
+            break
+        os.write(target, chunk)
+        offset += len(chunk)
 
 
 class _BackgroundSync:

@@ -155,3 +155,39 @@ def test_log_survives_sigkill(tmp_path: Path, fmt: str, unflushed: int) -> None:
     assert [key(f) for f in back] == [key(f) for f in written[: len(back)]]
     if fmt != "asc":  # absolute times, also in a BLF file its writer never closed
         assert back[0].timestamp == pytest.approx(written[0].timestamp, abs=2e-6)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_a_log_removed_while_recording_is_saved_again_and_fails(tmp_path: Path, fmt: str) -> None:
+    """A session folder deleted during the test (a cleanup script, an operator's rm -rf): the
+    writes went on into a file without a name, the daemon said "completed" and nothing was on
+    disk. The next flush now sees it, writes the frames so far back to the log's path and
+    fails the recorder, which stops the test (log_write)."""
+    import shutil
+
+    start = time.time()
+    folder = tmp_path / "session"
+    folder.mkdir()
+    metadata = session_metadata(
+        session="session", started_s=start, source="test", interface=load_interface()
+    )
+    recorder = Recorder(folder / f"session.{fmt}", start, 0.5, "vcan0", metadata)
+    written = frames(start, 200)
+    for frame in written[:150]:
+        recorder.write(frame)
+    shutil.rmtree(folder)
+    recorder.flush()
+    assert recorder.failure is not None and "was removed while the test recorded it" in (
+        recorder.failure
+    )
+    assert "150 frames written before were saved to it again" in recorder.failure
+    for frame in written[150:]:
+        recorder.write(frame)
+    recorder.close()
+    assert recorder.lost == 50
+    back = read_log(recorder.path)
+    assert [key(f) for f in back] == [key(f) for f in written[:150]]
+    after = read_metadata(recorder.path)
+    assert after is not None
+    assert after["integrity"]["frames"] == 150 and after["integrity"]["lost"] == 50
+    assert "was removed" in after["integrity"]["failure"]
