@@ -71,6 +71,8 @@ def endpoint(address: str, bind: bool = False) -> str:
         host, sep, port = parts.netloc.rpartition(":")
         if not sep or not port.isdigit():
             raise ConfigError(f"endpoint {address!r}: expected tcp://HOST:PORT")
+        if not 1 <= int(port) <= 65535:  # ZeroMQ takes 99999 as 34463
+            raise ConfigError(f"endpoint {address!r}: the port must lie in 1 .. 65535")
         if not host or (not bind and host in ("*", "0.0.0.0")):
             host = "127.0.0.1"
         return f"tcp://{host}:{port}"

@@ -299,6 +299,8 @@ def test_endpoints_are_local_unless_told() -> None:
         endpoint("udp://1.2.3.4:5")
     with pytest.raises(Exception, match="HOST:PORT"):
         endpoint("tcp://localhost")
+    with pytest.raises(Exception, match=r"port must lie in 1 \.\. 65535"):
+        endpoint("tcp://127.0.0.1:99999")  # ZeroMQ listened on 34463 and said 99999
 
 
 def test_samples_give_the_logs_recording_exactly(session: SimulatedSession) -> None:
