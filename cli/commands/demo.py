@@ -15,6 +15,9 @@ import argparse
 import json
 import multiprocessing
 import os
+import shutil
+import signal
+import sys
 import tempfile
 import threading
 from dataclasses import replace
@@ -30,6 +33,7 @@ from dtid.acquisition.config import (
 )
 from dtid.acquisition.daemon import Daemon
 from dtid.acquisition.plan import TestPlan, plan_from_file
+from dtid.cli import EXIT_INTERRUPTED
 from dtid.cli.commands.common import seed, speedup
 from dtid.cli.commands.frf import summary_line
 from dtid.dbc.loader import load_interface
@@ -59,6 +63,8 @@ real bus gets 0.2 s of bus time; the demo's vehicle shares a busy laptop with th
 host stall of 40-100 ms (seen here) would otherwise abort the test."""
 WORKER_NICE = 10
 """Scheduling niceness of the worker, so its search never delays the bus processes."""
+WORKER_STOP_S = 10.0
+"""How long an interrupted demo waits for its worker to end the aborted session, s."""
 TEST_BUDGET_S = 120.0
 """Wall time the demo's chirp test may take at its speedup, s: with the identification, whose
 time grows with the test's, the demo then stays within five minutes on a 2-core laptop. The
@@ -99,7 +105,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _serve_worker(pipeline: PipelineConfig, options: WorkerOptions) -> None:
-    """The worker process: one session, at low priority, one core left to the bus."""
+    """The worker process: one session, at low priority, one core left to the bus. A Ctrl-C
+    is the daemon's to handle (it aborts the test and ends the session, which ends the
+    worker); here it had printed the worker's traceback."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     os.nice(WORKER_NICE)
     leave_a_core_to_the_bus()
     Worker(pipeline, options).serve(once=True)
@@ -161,8 +170,16 @@ def run(args: argparse.Namespace) -> int:
         stop.set()
         vehicle_thread.join()
         vehicle_bus.shutdown()
+    if result.reason == "signal":
+        worker.join(WORKER_STOP_S)
+        if worker.is_alive():
+            worker.terminate()
+        shutil.rmtree(runtime, ignore_errors=True)
+        print(f"interrupted; the recording is kept in {result.session_dir}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     print("waiting for the worker's identification ...", flush=True)
     worker.join()
+    shutil.rmtree(runtime, ignore_errors=True)
     if result.status != "completed":
         raise AnalysisError(f"the demo's test was aborted ({result.reason})")
     identification = result.log_path.with_name("identification.json")
