@@ -40,13 +40,18 @@ def leaves_the_machine(endpoint: str) -> bool:
 
 
 def create_keys(directory: Path) -> list[Path]:
-    """Write the server and client key pairs into ``directory`` (made with mode 0700).
+    """Write the server and client key pairs into ``directory`` (made with mode 0700 when it
+    does not exist; the secret keys get mode 0600 in any case).
 
     Raises
     ------
     ConfigError
         If the folder cannot be made or already holds keys (they are never overwritten).
     """
+    if str(directory) in ("", "."):  # `dtid keys ""` wrote them into the working folder
+        raise ConfigError("give the folder to write the keys to (a new one, e.g. keys/)")
+    if directory.exists() and not directory.is_dir():
+        raise ConfigError(f"{directory} is a file, not a folder: give a folder for the keys")
     existing = [directory / f"{n}.key{s}" for n in (SERVER, CLIENT) for s in ("", "_secret")]
     if any(path.exists() for path in existing):
         raise ConfigError(f"{directory} already holds keys; they are never overwritten")

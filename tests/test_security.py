@@ -106,3 +106,20 @@ def test_with_keys_only_a_key_holder_gets_the_stream(tmp_path: Path) -> None:
         assert _replay(local, forged) is None
     finally:
         server.close()
+
+
+def test_keys_go_into_a_folder_named_for_them(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`dtid keys ""` wrote the secret keys into the working folder; a file given as the folder
+    said "File exists"."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ConfigError, match="give the folder to write the keys to"):
+        create_keys(Path(""))
+    (tmp_path / "afile").touch()
+    with pytest.raises(ConfigError, match="afile is a file, not a folder"):
+        create_keys(Path("afile"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile"]
+    written = create_keys(Path("keys"))
+    assert (tmp_path / "keys").stat().st_mode & 0o777 == 0o700
+    assert all(p.stat().st_mode & 0o777 == 0o600 for p in written if p.name.endswith("_secret"))

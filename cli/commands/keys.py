@@ -15,8 +15,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="write the CURVE keys a tcp:// pipeline off this machine needs",
         description="Write a key pair for the binding side (daemon, worker results: "
         "server.key, server.key_secret) and one for the connecting side (client.key, "
-        "client.key_secret) into DIR (mode 0700). Give both machines the folder (the daemon's "
-        "needs server.key_secret and both public keys; the worker's both pairs) and set "
+        "client.key_secret) into DIR (a new folder gets mode 0700, the secret keys 0600). "
+        "Give both machines the folder (the daemon's needs server.key_secret and both public "
+        "keys; the worker's both pairs) and set "
         '[pipeline] keys = "DIR" in their configurations. A tcp:// endpoint other than '
         "loopback is refused without them.",
     )
