@@ -78,6 +78,14 @@ class SetpointStep:
     at_s: float
     setpoint_rpm: float
 
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.at_s) and self.at_s >= 0):
+            raise ConfigError(f"set-point step: the time must be >= 0 s, got {self.at_s}")
+        if not (math.isfinite(self.setpoint_rpm) and self.setpoint_rpm > 0):
+            raise ConfigError(
+                f"set-point step: the new set-point must be > 0 rpm, got {self.setpoint_rpm}"
+            )
+
 
 @dataclass
 class VehicleReport:

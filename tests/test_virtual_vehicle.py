@@ -183,3 +183,16 @@ def test_vehicle_fault_injection_drops_and_corrupts_its_frames():
     assert np.sum(gaps > 1) > 0  # lost frames show as counter gaps
     ecu_roles = ("speed", "torque_request", "mean_torque")
     assert sum(decoded[role].n_bad for role in ecu_roles) == report.faults["corrupted"]
+
+
+@pytest.mark.parametrize(
+    ("at_s", "rpm", "why"),
+    [(float("nan"), 800.0, "time must be >= 0 s"), (1.0, -800.0, "must be > 0 rpm")],
+)
+def test_a_setpoint_step_no_engine_can_take_is_refused(at_s: float, rpm: float, why: str) -> None:
+    """`dtid vehicle --setpoint-step nan 800` or `1 -800` were taken without a word."""
+    from dtid.errors import ConfigError
+    from dtid.simulator.virtual_vehicle import SetpointStep
+
+    with pytest.raises(ConfigError, match=why):
+        SetpointStep(at_s, rpm)
