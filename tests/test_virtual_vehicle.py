@@ -16,10 +16,11 @@ from dtid.dbc.checksum import verify_checksum
 from dtid.dbc.ecu_requests import RequestReceiver, applied_test_torque
 from dtid.dbc.loader import load_interface
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
+from dtid.errors import ConfigError
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.plant_stepper import PlantStepper
 from dtid.simulator.simulate import SimulationOptions, simulate
-from dtid.simulator.virtual_vehicle import BusFaults, VirtualVehicle
+from dtid.simulator.virtual_vehicle import BusFaults, SetpointStep, VirtualVehicle
 
 INTERFACE = load_interface()
 
@@ -191,8 +192,5 @@ def test_vehicle_fault_injection_drops_and_corrupts_its_frames():
 )
 def test_a_setpoint_step_no_engine_can_take_is_refused(at_s: float, rpm: float, why: str) -> None:
     """`dtid vehicle --setpoint-step nan 800` or `1 -800` were taken without a word."""
-    from dtid.errors import ConfigError
-    from dtid.simulator.virtual_vehicle import SetpointStep
-
     with pytest.raises(ConfigError, match=why):
         SetpointStep(at_s, rpm)
