@@ -185,13 +185,15 @@ def test_config_takes_the_campaign_keys_from_test(tmp_path: Path) -> None:
         load_config(path)
 
 
+@pytest.mark.parametrize("adaptive", ["true", "false"])  # false: it was ignored
 def test_an_unknown_target_is_refused_before_the_bus_is_opened(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    adaptive: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     config = tmp_path / "dtid.toml"
     runs = tmp_path / "runs"
     config.write_text(
-        f'[test]\nadaptive = true\n[test.targets]\nstiffness = 5\n[output]\ndirectory = "{runs}"\n'
+        f"[test]\nadaptive = {adaptive}\n[test.targets]\nstiffness = 5\n"
+        f'[output]\ndirectory = "{runs}"\n'
     )
     assert main(["acquire", "--config", str(config)]) == 2
     assert "[test] targets: 'stiffness=5'" in capsys.readouterr().err

@@ -55,8 +55,8 @@ def run(args: argparse.Namespace) -> int:
         config = config.with_changes("bus", **bus)
     if args.output is not None:
         config = config.with_changes("output", directory=args.output)
+    _check_targets(config.campaign.targets)  # a misspelt name, adaptive or not
     if config.campaign.adaptive:
-        _check_targets(config.campaign.targets)
         campaign = Campaign(config, linger_s=args.linger, wait_s=args.wait, report=_print)
         return campaign.run().exit_status
     daemon = Daemon(config, linger_s=args.linger, wait_s=args.wait, report=_print)
