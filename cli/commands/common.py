@@ -7,6 +7,7 @@ import json
 import math
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TextIO
@@ -117,15 +118,23 @@ def positive_float(text: str) -> float:
     return _finite_float(text, positive=True)
 
 
-def speedup(text: str) -> float:
-    """argparse type: bus time per wall time, in (0, :data:`MAX_TIME_FACTOR`]."""
-    value = positive_float(text)
-    if value > MAX_TIME_FACTOR:
-        raise argparse.ArgumentTypeError(
-            f"{text} is above {MAX_TIME_FACTOR:g}: a virtual vehicle faster than that does not "
-            "keep pace with the bus"
-        )
-    return value
+def at_most(upper: float, why: str, unit: str = "") -> Callable[[str], float]:
+    """An argparse type: a finite number > 0 and at most ``upper``; above it the message
+    gives ``why`` (a unit slip, a value no test runs with)."""
+
+    def parse(text: str) -> float:
+        value = positive_float(text)
+        if value > upper:
+            raise argparse.ArgumentTypeError(f"{text}{unit} is above {upper:g}{unit}: {why}")
+        return value
+
+    return parse
+
+
+speedup = at_most(
+    MAX_TIME_FACTOR, "a virtual vehicle faster than that does not keep pace with the bus"
+)
+"""argparse type: bus time per wall time, in (0, :data:`MAX_TIME_FACTOR`]."""
 
 
 def _finite_float(text: str, positive: bool) -> float:

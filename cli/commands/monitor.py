@@ -14,7 +14,7 @@ import shutil
 from pathlib import Path
 
 from dtid.acquisition.config import load_config
-from dtid.cli.commands.common import positive_float
+from dtid.cli.commands.common import at_most
 from dtid.identification.service.monitor import run_monitor
 
 MAX_REFRESH_S = 10.0
@@ -22,15 +22,8 @@ MAX_REFRESH_S = 10.0
 above 2.1e6 s overflowed ZeroMQ's poll)."""
 
 
-def refresh(text: str) -> float:
-    """argparse type: the redraw period, s, in (0, :data:`MAX_REFRESH_S`]."""
-    value = positive_float(text)
-    if value > MAX_REFRESH_S:
-        raise argparse.ArgumentTypeError(
-            f"{text} s is above {MAX_REFRESH_S:g} s (the period is in seconds: 0.5 redraws "
-            "twice a second)"
-        )
-    return value
+refresh = at_most(MAX_REFRESH_S, "the period is in seconds: 0.5 redraws twice a second", " s")
+"""argparse type: the redraw period, s, in (0, :data:`MAX_REFRESH_S`]."""
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
