@@ -155,17 +155,21 @@ def test_a_gap_in_the_speed_is_refused() -> None:
 def test_a_run_the_speed_does_not_follow_is_refused() -> None:
     """Speed and torque that do not follow the test torque (coherence near 0) give no FRF."""
     data = _data(20.0)
-    noise = np.random.default_rng(0).standard_normal
-    speed, torque = data.speed, data.mean_torque
-    unrelated = TestData(
-        Series(speed.t, 1000 + noise(len(speed))),
-        Series(torque.t, 10 + noise(len(torque))),
-        data.test_torque,
-    )
     run = find_runs(data.test_torque)[0]
     assert np.median(estimate_frf(data, run).coherence) > 0.9
     with pytest.raises(AnalysisError, match=r"median coherence of 0\.0\d.*was disturbed"):
-        estimate_frf(unrelated, run)
+        estimate_frf(_unrelated(data, 1000.0, 10.0), run)
+
+
+def _unrelated(data: TestData, speed_rpm: float, torque_nm: float) -> TestData:
+    """The test torque of ``data`` with a speed and a torque that are noise around these."""
+    noise = np.random.default_rng(0).standard_normal
+    speed, torque = data.speed, data.mean_torque
+    return TestData(
+        Series(speed.t, speed_rpm + noise(len(speed))),
+        Series(torque.t, torque_nm + noise(len(torque))),
+        data.test_torque,
+    )
 
 
 def test_a_chirp_folded_by_the_strokes_is_not_taken_for_a_disturbed_test(
@@ -183,15 +187,8 @@ def test_a_chirp_folded_by_the_strokes_is_not_taken_for_a_disturbed_test(
     estimate = estimate_frf(data, run)
     assert np.median(estimate.coherence) < 0.5  # against what the tool sent
     assert estimate.frequency_hz[-1] < 0.5 * 650 / 60 * 2  # below the strokes' Nyquist
-    noise = np.random.default_rng(0).standard_normal
-    speed, torque = data.speed, data.mean_torque
-    unrelated = TestData(
-        Series(speed.t, 650 + noise(len(speed))),
-        Series(torque.t, 15 + noise(len(torque))),
-        data.test_torque,
-    )
     with pytest.raises(AnalysisError, match="was disturbed"):
-        estimate_frf(unrelated, run)
+        estimate_frf(_unrelated(data, 650.0, 15.0), run)
 
 
 def _lagging(lag_s: float) -> TestData:
