@@ -610,6 +610,32 @@ def test_a_removed_output_directory_stops_the_test_the_same_way(
     assert last.extra["enable"][-ZERO_REQUESTS:].tolist() == [0] * ZERO_REQUESTS
 
 
+def test_a_session_folder_removed_during_the_test_stops_it_and_is_written_back(
+    tmp_path: Path,
+) -> None:
+    """The session folder removed at the first chirp (an operator's rm -rf): the daemon wrote on
+    into a file without a name, said "completed" and left nothing on disk. Now the test stops
+    (log_write, zero requests) and the log is back in its place with what it held."""
+    config = make_config(tmp_path)
+    ecu = FakeEcu(config.bus.channel)
+    log: list[Path] = []
+
+    def remove_at_the_first_chirp(line: str) -> None:
+        if line.startswith("log: ") and not log:
+            log.append(Path(line.removeprefix("log: ")))
+        elif "chirp 1 of" in line:
+            shutil.rmtree(log[0].parent)
+
+    result = run_daemon(config, ecu, report=remove_at_the_first_chirp)
+    assert (result.status, result.reason) == ("aborted", "log_write")
+    last = INTERFACE.decode(by_id(ecu.received, REQUEST_ID))["test_torque"]
+    assert last.extra["enable"][-ZERO_REQUESTS:].tolist() == [0] * ZERO_REQUESTS
+    frames, _ = read_log_checked(result.log_path)
+    metadata = read_metadata(result.log_path)
+    assert metadata is not None and metadata["integrity"]["frames"] == len(frames) > 0
+    assert "was removed while the test recorded it" in metadata["integrity"]["failure"]
+
+
 @pytest.mark.parametrize(
     ("where", "error"),
     [
