@@ -84,9 +84,11 @@ def test_clock_stretches_from_the_start() -> None:
     assert clock.to_wall(clock.to_bus(1_700_000_003.25)) == pytest.approx(1_700_000_003.25)
 
 
-def test_clock_refuses_a_factor_that_is_not_positive() -> None:
-    with pytest.raises(ValueError, match="> 0"):
-        BusClock(0.0)
+@pytest.mark.parametrize("factor", [0.0, -1.0, float("nan"), 21.0, 1e9])
+def test_clock_refuses_a_factor_that_is_not_positive_or_beyond_keeping_pace(factor: float) -> None:
+    with pytest.raises(ValueError, match=r"must lie in \(0, 20\]"):
+        BusClock(factor)
+    assert BusClock(20.0).time_factor == 20.0
 
 
 @pytest.fixture
