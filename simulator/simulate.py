@@ -53,9 +53,12 @@ from dtid.simulator.parameters import NAMES, DrivetrainParameters
 STABILITY_LIMIT = 0.5
 """Largest omega*h (and damping rate * h) a substep may take; both of the kernel's schemes are
 stable below 2 (:mod:`dtid.simulator.kernel`)."""
-MAX_SUBSTEPS = 1000
-"""Most substeps per angle step a parameter set may need: a mode this fast (about 30 kHz at the
-reference idle) is a unit slip, not a drivetrain; the default search box's corners need < 50."""
+MAX_SUBSTEPS = 100_000
+"""Most substeps per angle step a parameter set may need: beyond, a 60 s test takes hours and
+the set is a unit slip, not a drivetrain (``--fix c12=1e300`` overflowed the count). The
+default search box's corners need < 100; the diagnosis's refits up to about 16,000, where an
+``accessory_mode`` belt of 1 N*m/rad and 5 N*m*s/rad holds an accessory of 2.5e-6 kg*m^2
+(:func:`dtid.simulator.couplings.belt_is_rigid` lumps it only by its stiffness)."""
 QUADRATIC_RATE_RAD_S = 5.0
 """Relative DMF speed at which quadratic damping's slope is bounded for the step size, rad/s
 (a 10 Hz oscillation of 0.08 rad)."""
