@@ -514,6 +514,7 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
         (["worker", "--plot", "missing/fit.png"], "the folder missing does not exist"),
         (["vehicle", "--speedup", "1e9"], "1e9 is above 20"),  # Ctrl-C could not stop it
         (["monitor", "--refresh", "3e6"], "3e6 s is above 10 s"),  # ZeroMQ's poll overflowed
+        (["plan", "--max-time", "7200"], "7200 s is above 3600 s"),  # its plan, refused at the end
     ],
 )
 def test_an_output_nowhere_to_write_is_refused_before_the_work(

@@ -11,9 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from dtid.acquisition.config import load_config
+from dtid.acquisition.plan import MAX_TEST_S
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
+    at_most,
     non_negative_float,
     output_file,
     plot_file,
@@ -117,7 +119,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--max-time",
-        type=positive_float,
+        type=at_most(MAX_TEST_S, "a test at idle may take at most that long", " s"),
         default=DEFAULT_MAX_TIME_S,
         metavar="S",
         help=f"longest whole test, s (default: {DEFAULT_MAX_TIME_S:g})",
