@@ -55,6 +55,7 @@ from dtid.acquisition.sequence import ZERO_REQUESTS, Phase, RequestSender, ToolF
 from dtid.acquisition.server import EventServer
 from dtid.acquisition.stream import ABORT_REASONS
 from dtid.dbc.loader import load_interface
+from dtid.dbc.roles import CRANK_RATE_TOLERANCE, SPEED_SAMPLES_PER_REVOLUTION
 from dtid.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -140,6 +141,7 @@ class Daemon:
         self._reason: str | None = None
         self._t_end: float | None = None
         self._t_start: float | None = None
+        self._sampling_checked = False
 
     def run(self) -> DaemonResult:
         """Run the test and return how it ended.
@@ -304,10 +306,35 @@ class Daemon:
             if self._status is not None:
                 return
             assert self._path.safety is not None
+            if not self._sampling_checked:
+                self._check_speed_sampling(self._path.safety)
             timeout = self._path.safety.check_timeout(now) if drained else None
             if timeout is not None:
                 self._abort(timeout)
                 return
+
+    def _check_speed_sampling(self, safety: SafetyMonitor) -> None:
+        """Once the settle phase has ended: warn when the speed did not come once per crank
+        event. Such a recording will not identify (`dtid identify` refuses it), and the
+        operator can stop the test now instead of after minutes; it is not aborted, since a
+        signal map mapping the right message can still read the recorded frames."""
+        per_revolution = safety.settle_samples_per_revolution
+        if per_revolution is None:
+            return
+        self._sampling_checked = True
+        expected = SPEED_SAMPLES_PER_REVOLUTION
+        if abs(per_revolution / expected - 1.0) <= CRANK_RATE_TOLERANCE:
+            return
+        message = (
+            f"the engine speed came {per_revolution:.1f} times a crank revolution over the "
+            f"settle phase where the ECU's crank-synchronous speed comes {expected}: this "
+            "recording will not identify. Check [bus] time_factor "
+            f"({self.config.bus.time_factor:g}) against the vehicle's (a virtual vehicle's "
+            "--speedup), the speed's unit and scale in the signal map, and that the map names "
+            "the speed the ECU sends once per crank event, not one sent on a timer"
+        )
+        logger.warning("%s", message)
+        self.report(f"warning: {message}")
 
     def _start(self) -> None:
         self._t_start = t_start = self._clock.now()

@@ -23,6 +23,10 @@ import numpy as np
 
 from dtid.acquisition.config import SafetyConfig
 
+SETTLE_SAMPLES = 50
+"""Fewest speed samples in the settle phase from which their rate per revolution is read (about
+a second at idle; the default settle phase of 3 s holds 150-200)."""
+
 
 class SafetyMonitor:
     """Watch the engine speed of a test for the speed window and the vehicle timeout.
@@ -48,6 +52,7 @@ class SafetyMonitor:
         self._settle_end = t_start + settle_s
         self._settle_sum = 0.0
         self._settle_count = 0
+        self._settle_times: list[np.ndarray] = []  # bus time, s
         self._last_speed_t = t_start
         self._recent: list[float] = []  # the last two samples, for the median of three
 
@@ -60,6 +65,7 @@ class SafetyMonitor:
         if self.setpoint_rpm is None:
             self._settle_sum += float(np.sum(rpm[in_settle]))
             self._settle_count += int(np.count_nonzero(in_settle))
+            self._settle_times.append(times[in_settle])
             if not np.all(in_settle):
                 if self._settle_count:
                     self.setpoint_rpm = self._settle_sum / self._settle_count
@@ -77,6 +83,17 @@ class SafetyMonitor:
         if np.any(np.abs(filtered - self.setpoint_rpm) > self.config.speed_window_rpm):
             return "speed_window"
         return None
+
+    @property
+    def settle_samples_per_revolution(self) -> float | None:
+        """Speed samples per crank revolution over the settle phase: a revolution at its mean
+        speed over the samples' median interval (a burst of frames stamped as they were read,
+        at the start, does not move it); None before the settle phase has ended or with fewer
+        than :data:`SETTLE_SAMPLES` samples."""
+        if self.setpoint_rpm is None or self._settle_count < SETTLE_SAMPLES:
+            return None
+        interval = float(np.median(np.diff(np.concatenate(self._settle_times))))
+        return 60.0 / (self.setpoint_rpm * interval) if interval > 0 else None
 
     def check_timeout(self, now: float) -> str | None:
         """Return ``vehicle_timeout`` when no speed frame came for too long before ``now`` (bus

@@ -34,3 +34,9 @@ EXTRA_SIGNAL_KEYS: Mapping[str, tuple[str, ...]] = MappingProxyType(
 #: torque, s (five request periods of 10 ms): the product ECU's, and what the analysis assumes of
 #: a vehicle whose signal map gives no ``timeout_s`` for its ``test_torque`` role.
 DEFAULT_REQUEST_TIMEOUT_S: float = 0.05
+#: Samples of the ``speed`` role per crank revolution: the ECU's filtered speed, once per crank
+#: event (every pi/2, the paper's section II-C).
+SPEED_SAMPLES_PER_REVOLUTION: int = 4
+#: Relative departure of a role's samples per crank revolution from the expected beyond which it
+#: is not crank-synchronous (lost frames and the speed's own swing move the count by far less).
+CRANK_RATE_TOLERANCE: float = 0.15

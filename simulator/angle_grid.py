@@ -7,6 +7,8 @@ sensors of section II-C fire on fixed step counts.
 
 import math
 
+from dtid.dbc.roles import SPEED_SAMPLES_PER_REVOLUTION
+
 STEP_RAD = math.pi / 30
 """Angle step phi_s of eq. (8), rad: 1 ms at 1000 rpm."""
 
@@ -19,8 +21,8 @@ STEPS_PER_CYCLE = 120
 STEPS_PER_STROKE = 30
 """Steps between two firings (pi rad); the mean-torque sensor reports once per stroke."""
 
-STEPS_PER_SPEED_SAMPLE = 15
-"""Steps between two filtered-speed samples (pi/2 rad, section II-C)."""
+STEPS_PER_SPEED_SAMPLE = round(2 * math.pi / STEP_RAD / SPEED_SAMPLES_PER_REVOLUTION)
+"""Steps between two filtered-speed samples: 15 (pi/2 rad, section II-C)."""
 
 N_WIN = 30
 """Moving-average window of the speed sensor, in steps (pi rad, eq. 9)."""

@@ -610,6 +610,29 @@ def test_a_removed_output_directory_stops_the_test_the_same_way(
     assert last.extra["enable"][-ZERO_REQUESTS:].tolist() == [0] * ZERO_REQUESTS
 
 
+@pytest.mark.parametrize("vehicle_factor", [TIME_FACTOR, 3 * TIME_FACTOR])
+def test_a_speed_that_is_not_crank_synchronous_is_named_after_the_settle_phase(
+    tmp_path: Path, vehicle_factor: float
+) -> None:
+    """A virtual vehicle run three times as fast as the daemon's [bus] time_factor: its speed
+    frames came 12 times a revolution in the daemon's bus time; the test ran to "completed"
+    and only `dtid identify` said, minutes later, that the recording could not be read. The
+    daemon now says so when the settle phase ends (a warning: the frames are recorded all the
+    same, and a signal map naming the right message may still read them)."""
+    config = make_config(tmp_path, test={"settle_s": 2.0})  # 133 speed samples at 1000 rpm
+    lines: list[str] = []
+    ecu = FakeEcu(config.bus.channel, time_factor=vehicle_factor)
+    run_daemon(config, ecu, report=lines.append)
+    warnings = [line for line in lines if line.startswith("warning: the engine speed came")]
+    if vehicle_factor == TIME_FACTOR:
+        assert warnings == []
+    else:
+        (warning,) = warnings
+        per_revolution = float(warning.split()[5])
+        assert per_revolution == pytest.approx(12.0, rel=0.3), warning
+        assert "[bus] time_factor (2)" in warning
+
+
 def test_a_session_folder_removed_during_the_test_stops_it_and_is_written_back(
     tmp_path: Path,
 ) -> None:

@@ -24,15 +24,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dtid.dbc.roles import CRANK_RATE_TOLERANCE
 from dtid.simulator.angle_grid import STEP_RAD, STEPS_PER_SPEED_SAMPLE, STEPS_PER_STROKE
 
 SPEED_PER_REVOLUTION = 2 * math.pi / (STEPS_PER_SPEED_SAMPLE * STEP_RAD)
 """Filtered-speed samples per crank revolution (one every pi/2): 4."""
 STROKES_PER_REVOLUTION = 2 * math.pi / (STEPS_PER_STROKE * STEP_RAD)
 """Mean-torque samples per crank revolution (one per working stroke): 2."""
-RATE_TOLERANCE = 0.15
+RATE_TOLERANCE = CRANK_RATE_TOLERANCE
 """Relative departure of the samples per revolution from the expected beyond which a series is
-not crank-synchronous (lost frames and the speed's own swing move the median by far less)."""
+not crank-synchronous (:data:`dtid.dbc.roles.CRANK_RATE_TOLERANCE`)."""
 PERIODIC_SLOPE = -0.5
 """Slope of log interval on log speed above which the intervals do not follow the speed:
 crank-synchronous sampling gives -1, time-periodic 0."""
