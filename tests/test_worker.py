@@ -816,3 +816,21 @@ def test_worker_command_rejects_a_bad_budget(capsys: pytest.CaptureFixture[str])
 def test_config_default_endpoints_are_ipc() -> None:
     pipeline = AcquisitionConfig().pipeline
     assert all(getattr(pipeline, n).startswith("ipc://") for n in ("blocks", "replay", "results"))
+
+
+def test_a_worker_stopped_before_its_one_session_ended_says_so(
+    ipc_dir: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`dtid worker --once` stopped (Ctrl-C, SIGTERM) while it waited exited 0 without a word,
+    as if its session had been served; it now exits 130 and says what it served."""
+
+    def stopped(self: Worker, once: bool, stop: threading.Event) -> int:
+        signal.getsignal(signal.SIGINT)(signal.SIGINT, None)  # the command's own handler
+        assert stop.is_set()
+        return 0
+
+    monkeypatch.setattr(Worker, "serve", stopped)
+    config = _config_file(ipc_dir, _pipeline(ipc_dir))
+    assert main(["worker", "--config", str(config), "--once"]) == 130
+    assert "worker stopped (sessions served: none)" in capsys.readouterr().err
+    assert main(["worker", "--config", str(config)]) == 0  # a service stopped: nothing lost

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from dtid.acquisition.config import load_config
+from dtid.cli import EXIT_INTERRUPTED
 from dtid.cli.commands.common import add_vehicle_option, output_file, plot_file, vehicle_data
 from dtid.cli.commands.identify import add_search_options, print_report, search_settings
 from dtid.errors import ConfigError
@@ -117,7 +118,13 @@ def run(args: argparse.Namespace) -> int:
         sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
     }
     try:
-        return worker.serve(once=args.once, stop=stop)
+        status = worker.serve(once=args.once, stop=stop)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+    if stop.is_set():
+        served = ", ".join(f"{sid} {end}" for sid, end in worker.finished.items()) or "none"
+        print(f"worker stopped (sessions served: {served})", file=sys.stderr)
+        if args.once and not worker.finished:  # the one session it was to serve never ended
+            return EXIT_INTERRUPTED
+    return status
