@@ -64,7 +64,7 @@ host stall of 40-100 ms (seen here) would otherwise abort the test."""
 WORKER_NICE = 10
 """Scheduling niceness of the worker, so its search never delays the bus processes."""
 WORKER_STOP_S = 10.0
-"""How long an interrupted demo waits for its worker to end the aborted session, s."""
+"""How long an interrupted or failed demo waits for its worker to end, s, before stopping it."""
 TEST_BUDGET_S = 120.0
 """Wall time the demo's chirp test may take at its speedup, s: with the identification, whose
 time grows with the test's, the demo then stays within five minutes on a 2-core laptop. The
@@ -165,21 +165,22 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     try:
-        result = Daemon(config, report=lambda line: print(line, flush=True)).run()
+        try:
+            result = Daemon(config, report=lambda line: print(line, flush=True)).run()
+        finally:
+            stop.set()
+            vehicle_thread.join()
+            vehicle_bus.shutdown()
+        if result.reason == "signal":
+            print(f"interrupted; the recording is kept in {result.session_dir}", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        print("waiting for the worker's identification ...", flush=True)
+        worker.join()
     finally:
-        stop.set()
-        vehicle_thread.join()
-        vehicle_bus.shutdown()
-    if result.reason == "signal":
-        worker.join(WORKER_STOP_S)
+        worker.join(WORKER_STOP_S)  # ended with its session; not if the daemon failed
         if worker.is_alive():
             worker.terminate()
         shutil.rmtree(runtime, ignore_errors=True)
-        print(f"interrupted; the recording is kept in {result.session_dir}", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    print("waiting for the worker's identification ...", flush=True)
-    worker.join()
-    shutil.rmtree(runtime, ignore_errors=True)
     if result.status != "completed":
         raise AnalysisError(f"the demo's test was aborted ({result.reason})")
     identification = result.log_path.with_name("identification.json")
