@@ -84,6 +84,8 @@ def new_session_directory(parent: Path, now_s: float | None = None) -> Path:
         If the directory cannot be created.
     """
     stamp = time.strftime("%Y%m%dT%H%M%SZ", time.gmtime(now_s))
+    if parent.exists() and not parent.is_dir():
+        raise RecordingError(f"{parent} is a file, not a folder: give a folder for the sessions")
     try:
         parent.mkdir(parents=True, exist_ok=True)
         number = 1

@@ -108,6 +108,9 @@ def test_each_session_gets_its_own_directory(tmp_path: Path) -> None:
     assert first.name == "20270115T080000Z"
     assert second.name == "20270115T080000Z-2"
     assert first.is_dir() and second.is_dir()
+    (tmp_path / "afile").touch()  # said "File exists"
+    with pytest.raises(RecordingError, match="afile is a file, not a folder"):
+        new_session_directory(tmp_path / "afile", now)
 
 
 KILLED_WRITER = """

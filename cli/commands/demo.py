@@ -116,6 +116,8 @@ def _serve_worker(pipeline: PipelineConfig, options: WorkerOptions) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the three on a virtual bus and show what the worker identified."""
+    if args.out.exists() and not args.out.is_dir():
+        raise RecordingError(f"{args.out} is a file, not a folder: give a folder for the demo")
     try:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as error:
