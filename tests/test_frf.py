@@ -186,6 +186,7 @@ def test_a_chirp_folded_by_the_strokes_is_not_taken_for_a_disturbed_test(
     run = find_runs(data.test_torque)[0]
     estimate = estimate_frf(data, run)
     assert np.median(estimate.coherence) < 0.5  # against what the tool sent
+    assert np.median(estimate.stroke_coherence) > 0.8  # against what the strokes took
     assert estimate.frequency_hz[-1] < 0.5 * 650 / 60 * 2  # below the strokes' Nyquist
     with pytest.raises(AnalysisError, match="was disturbed"):
         estimate_frf(_unrelated(data, 650.0, 15.0), run)
