@@ -537,7 +537,7 @@ def stroke_coherence(
     Nyquist frequency folds into the band (at f_s - f), in the torque and the speed alike but
     not in the test torque the tool sent. Against that test torque the folded part reads as
     noise: a test at a low idle swept to 20 Hz (650 rpm, f_s 21.7 Hz) showed a median coherence
-    of 0.47 over 1.2-10.6 Hz, the independent recordings (800-850 rpm) 0.46-0.57 over 9-14 Hz.
+    of 0.47 over 1.2-10.6 Hz, the independent vehicle_1 (850 rpm) 0.48-0.57 over 9-14 Hz.
     The model replays the folding (it takes the recorded request at the vehicle's crank events),
     so such a run is not disturbed: sampled as the strokes took it, once per mean-torque report
     at the better (by median) of the stroke's crank events, the test torque holds the folded
