@@ -510,8 +510,8 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
         (["identify", "REC", "--plot", "fit.txt"], "cannot plot to fit.txt: give a file name"),
         (["vehicle", "--report", "REC"], "is a CAN recording"),  # it wrote the report over it
         (["vehicle", "--report", "REC.json"], "holds the metadata of the recording"),
-        (["worker", "--json", "REC"], "is a CAN recording"),
-        (["worker", "--plot", "missing/fit.png"], "the folder missing does not exist"),
+        (["worker", "--once", "--json", "REC"], "is a CAN recording"),
+        (["worker", "--once", "--plot", "missing/fit.png"], "the folder missing does not exist"),
         (["vehicle", "--speedup", "1e9"], "1e9 is above 20"),  # Ctrl-C could not stop it
         (["monitor", "--refresh", "3e6"], "3e6 s is above 10 s"),  # ZeroMQ's poll overflowed
         (["plan", "--max-time", "7200"], "7200 s is above 3600 s"),  # its plan, refused at the end
@@ -609,6 +609,15 @@ def test_the_progress_bar_keeps_a_log_file_readable() -> None:
     ]
     bar.finish()  # before the result is printed: the last bar stopped early
     assert screen.getvalue().endswith("50/150 objective 0.1800\n")
+
+
+def test_a_worker_serving_sessions_takes_no_single_result_file(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """Without --once, `dtid worker --json id.json` wrote every session's result over the
+    previous session's."""
+    message = _error(capsys, ["worker", "--json", str(tmp_path / "id.json")])
+    assert "--json and --plot name one file, for one session: give them with --once" in message
 
 
 def test_ctrl_c_while_the_libraries_load_says_interrupted(

@@ -46,12 +46,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--json",
         type=output_file,
-        help="result file (default: identification.json beside the log)",
+        help="result file, with --once (default: identification.json beside the log)",
     )
     parser.add_argument(
         "--plot",
         type=plot_file,
-        help="Fig. 6 plot (default: identification.png beside the log)",
+        help="Fig. 6 plot, with --once (default: identification.png beside the log)",
     )
     parser.add_argument("--no-plot", action="store_true", help="do not plot")
     parser.add_argument(
@@ -93,6 +93,11 @@ class _Terminal:
 
 def run(args: argparse.Namespace) -> int:
     """Serve sessions until SIGINT/SIGTERM (or one session with --once)."""
+    if (args.json or args.plot) and not args.once:  # each session would write over the last's
+        raise ConfigError(
+            "--json and --plot name one file, for one session: give them with --once (a worker "
+            "serving sessions writes each one's identification.json and .png beside its log)"
+        )
     settings = search_settings(args)
     config = load_config(args.config)
     if args.plan_vehicles < 0:
