@@ -172,6 +172,20 @@ def _unrelated(data: TestData, speed_rpm: float, torque_nm: float) -> TestData:
     )
 
 
+def test_a_resolution_too_coarse_for_the_drivetrain_is_named_not_the_test(
+    reference: DrivetrainParameters,
+) -> None:
+    """`dtid frf --resolution 3` refused a good run as "the test was disturbed, repeat it": its
+    0.33 s segments are shorter than the drivetrain's response, and the default resolution
+    reads the same run as coherent."""
+    plan = TestPlan(amplitudes_nm=(10.0,), validation_nm=0.0, duration_s=20.0)
+    data = from_simulation(simulate(reference, plan, seed=2))
+    run = find_runs(data.test_torque)[0]
+    assert np.median(estimate_frf(data, run).coherence) > 0.9
+    with pytest.raises(AnalysisError, match=r"a 3 Hz resolution cuts it into segments of 0\.33 s"):
+        estimate_frf(data, run, resolution_hz=3.0)
+
+
 def test_a_chirp_folded_by_the_strokes_is_not_taken_for_a_disturbed_test(
     reference: DrivetrainParameters,
 ) -> None:

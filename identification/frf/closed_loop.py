@@ -299,15 +299,22 @@ def estimate_frf(
         sweep_hi > torque_nyquist  # the chirp folds: judge the test by what the strokes took
         and float(np.median(by_strokes)) >= MIN_MEDIAN_COHERENCE
     ):
+        finer = _coherent_at_the_default(data, run, resolution_hz, band_hz)
         raise AnalysisError(
             f"the chirp run at {run.start_s:.1f}-{run.end_s:.1f} s has a median coherence of "
             f"{median_coherence:.2f} over {lo:.2f}-{hi:.2f} Hz (at least "
             f"{MIN_MEDIAN_COHERENCE} expected): "
-            + incoherence_cause(
-                f,
-                torque_coherence,
-                request_coherence,
-                run_lag(f, eng, phase, torque_coherence, speed_rpm),
+            + (
+                f"a {resolution_hz:g} Hz resolution cuts it into segments of "
+                f"{1 / resolution_hz:.2g} s, shorter than the drivetrain's response, where "
+                f"{DEFAULT_RESOLUTION_HZ:g} Hz gives {finer:.2f}; ask for a finer resolution"
+                if finer is not None
+                else incoherence_cause(
+                    f,
+                    torque_coherence,
+                    request_coherence,
+                    run_lag(f, eng, phase, torque_coherence, speed_rpm),
+                )
             )
         )
     drv = drivetrain_magnitude(f, s_zy, s_zx, speed_rpm)
@@ -521,6 +528,24 @@ def run_lag(
     if not np.isfinite(phase).any():
         return None
     return engine_lag(frequency_hz, eng * np.exp(1j * phase), coherence, speed_rpm)
+
+
+def _coherent_at_the_default(
+    data: TestData,
+    run: ChirpRun,
+    resolution_hz: float,
+    band_hz: tuple[float, float] | None,
+) -> float | None:
+    """The median coherence of a run refused at a resolution coarser than
+    :data:`DEFAULT_RESOLUTION_HZ` where the default passes it, else None: the resolution, not
+    the test, is then why (`dtid frf --resolution 3` said "the test was disturbed")."""
+    if resolution_hz <= DEFAULT_RESOLUTION_HZ:
+        return None
+    try:
+        estimate = estimate_frf(data, run, DEFAULT_RESOLUTION_HZ, band_hz)
+    except AnalysisError:
+        return None
+    return float(np.median(estimate.coherence))
 
 
 def stroke_coherence(
