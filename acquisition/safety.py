@@ -50,9 +50,8 @@ class SafetyMonitor:
         self.config = config
         self.setpoint_rpm: float | None = None
         self._settle_end = t_start + settle_s
-        self._settle_sum = 0.0
-        self._settle_count = 0
         self._settle_times: list[np.ndarray] = []  # bus time, s
+        self._settle_rpm: list[np.ndarray] = []  # rpm
         self._last_speed_t = t_start
         self._recent: list[float] = []  # the last two samples, for the median of three
 
@@ -63,14 +62,11 @@ class SafetyMonitor:
         self._last_speed_t = max(self._last_speed_t, float(times[-1]))
         in_settle = times < self._settle_end
         if self.setpoint_rpm is None:
-            self._settle_sum += float(np.sum(rpm[in_settle]))
-            self._settle_count += int(np.count_nonzero(in_settle))
             self._settle_times.append(times[in_settle])
+            self._settle_rpm.append(rpm[in_settle])
             if not np.all(in_settle):
-                if self._settle_count:
-                    self.setpoint_rpm = self._settle_sum / self._settle_count
-                else:
-                    self.setpoint_rpm = float(rpm[~in_settle][0])
+                settled = np.concatenate(self._settle_rpm)
+                self.setpoint_rpm = float(np.mean(settled) if len(settled) else rpm[~in_settle][0])
         checked = rpm[~in_settle]
         if self.setpoint_rpm is None or len(checked) == 0:
             return None
@@ -90,9 +86,12 @@ class SafetyMonitor:
         speed over the samples' median interval (a burst of frames stamped as they were read,
         at the start, does not move it); None before the settle phase has ended or with fewer
         than :data:`SETTLE_SAMPLES` samples."""
-        if self.setpoint_rpm is None or self._settle_count < SETTLE_SAMPLES:
+        if self.setpoint_rpm is None:
             return None
-        interval = float(np.median(np.diff(np.concatenate(self._settle_times))))
+        times = np.concatenate(self._settle_times)
+        if len(times) < SETTLE_SAMPLES:
+            return None
+        interval = float(np.median(np.diff(times)))
         return 60.0 / (self.setpoint_rpm * interval) if interval > 0 else None
 
     def check_timeout(self, now: float) -> str | None:
