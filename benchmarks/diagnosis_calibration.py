@@ -37,13 +37,9 @@ from dtid.identification.diagnosis.diagnose import diagnose_report
 from dtid.identification.diagnosis.imbalance import stroke_test
 from dtid.identification.diagnosis.mismatch import MismatchMap, mismatch_map
 from dtid.identification.diagnosis.refit import ACCEPT_P
+from dtid.identification.gain_choice import held_gain
 from dtid.identification.model.test_setup import MeasuredTest
-from dtid.identification.pipeline import (
-    held_gain,
-    identification_runs,
-    run_identification,
-    validation_runs,
-)
+from dtid.identification.pipeline import identification_runs, run_identification, validation_runs
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import engine_gain
 from dtid.simulator.parameters import reference_parameters

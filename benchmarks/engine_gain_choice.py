@@ -4,10 +4,11 @@ Eq. (24) reads the engine's torque gain K as the mean of the measured |G_ENG|
 (:func:`dtid.identification.search.identify.engine_gain`); the idle loop also reads K stroke by
 stroke, each stroke's mean torque against the request it latched (``idle_loop.engine_gain``).
 The search holds eq. (24)'s unless the two differ by more than
-:data:`dtid.identification.pipeline.GAIN_DISAGREE` (:func:`dtid.identification.pipeline.
-held_gain`). This simulates the recordings of :mod:`benchmarks.diagnosis_calibration` (random
-vehicles with their own idle loops, ECU timing, engines and noise; the vehicle's engine data
-given) and identifies each twice with the default search, holding each K in turn:
+:data:`dtid.identification.gain_choice.GAIN_DISAGREE` (:func:`dtid.identification.
+gain_choice.held_gain`). This simulates the recordings of
+:mod:`benchmarks.diagnosis_calibration` (random vehicles with their own idle loops, ECU timing,
+engines and noise; the vehicle's engine data given) and identifies each twice with the default
+search, holding each K in turn:
 
     PYTHONPATH=. python benchmarks/engine_gain_choice.py --vehicles 53 34 51
     PYTHONPATH=. python benchmarks/engine_gain_choice.py --trial --vehicles 6 14

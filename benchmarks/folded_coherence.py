@@ -5,7 +5,7 @@ frequency (the independent recordings sweep 0.5-20 Hz at 800-850 rpm: strokes at
 reaches the drivetrain with its upper part folded into the band, at f_s - f. The folded part is in
 the measured torque and the speed, not in the test torque the tool sent, so the FRF's coherence
 reads it as noise; against the test torque as the strokes took it
-(:func:`dtid.identification.frf.closed_loop.stroke_coherence`) it is excitation.
+(:func:`dtid.identification.frf.low_coherence.stroke_coherence`) it is excitation.
 
 Per recording and run this prints, in 1 Hz bands, the measured torque's coherence with the tool's
 test torque and with the strokes', and K of eq. (24) with its bins chosen by either (the product

@@ -26,7 +26,7 @@ paper's model (as ``../shared/independent`` evidently are) from a discrete one
 
 ``engine_lag`` says whether the model's engine delivers the request at once (``"none"``, the
 default, the paper's eq. 3) or through the lag measured on the recording's runs
-(``"measured"``: T/T_ecu fitted as the ``torque_lag`` mechanism, ``closed_loop.engine_lag``),
+(``"measured"``: T/T_ecu fitted as the ``torque_lag`` mechanism, ``frf.engine_lag``),
 which then also enters the strokes' K, combustion variation and sensor noise
 (:func:`dtid.identification.model.idle_loop.idle_loop`). A recording with no lag is modelled
 alike either way.

@@ -10,14 +10,11 @@ from scipy import signal
 
 from dtid.acquisition.plan import TestPlan, requested_test_torque
 from dtid.errors import AnalysisError
-from dtid.identification.frf.closed_loop import (
-    cross_spectra,
-    engine_lag,
-    estimate_frf,
-    stroke_lag,
-)
+from dtid.identification.frf.closed_loop import estimate_frf
+from dtid.identification.frf.engine_lag import engine_lag, stroke_lag
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.frf.sensor_response import speed_filter_gain, torque_hold_gain
+from dtid.identification.frf.spectra import cross_spectra
 from dtid.identification.samples.testdata import Series, TestData, from_simulation
 from dtid.simulator.angle_grid import N_WIN, step_time
 from dtid.simulator.controller import IdleController

@@ -10,8 +10,9 @@ import pytest
 from dtid.acquisition.plan import TestPlan
 from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.frf.sensor_response import stroke_hold_gain
+from dtid.identification.gain_choice import held_gain
 from dtid.identification.model.test_setup import MeasuredTest
-from dtid.identification.pipeline import held_gain, identification_runs, run_identification
+from dtid.identification.pipeline import identification_runs, run_identification
 from dtid.identification.samples.testdata import TestData, from_simulation
 from dtid.identification.search.identify import (
     SearchSettings,

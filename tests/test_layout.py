@@ -35,7 +35,12 @@ LAYERS = (
     ("dtid.identification.model",),
     ("dtid.identification.search",),
     ("dtid.identification.uncertainty",),
-    ("dtid.identification.pipeline", "dtid.identification.setups", "dtid.identification.plots"),
+    (
+        "dtid.identification.gain_choice",
+        "dtid.identification.pipeline",
+        "dtid.identification.setups",
+        "dtid.identification.plots",
+    ),
     (
         "dtid.identification.diagnosis",
         "dtid.identification.html_report",

@@ -308,7 +308,7 @@ def idle_loop(data: TestData, lag_s: float = 0.0) -> IdleLoop:
         raise AnalysisError("too few speed or mean-torque samples to repeat the test in the model")
     t, speed = _event_grid(data.speed)
     noise_rpm = speed_noise_rpm(speed, 1.0 / float(np.median(np.diff(t))))
-    test = _held(data.test_torque, t)
+    test = data.test_torque.held(t, before=0.0)
     strokes = _nearest(t, data.mean_torque.t)
     if data.torque_request is not None and len(data.torque_request) > 1:
         request = _per_event(data.torque_request, t)
@@ -433,7 +433,7 @@ def stroke_lag(
 
     The strokes' torque and the requests they took are the lag's own data: the fit sees neither
     the speed sensor nor the strokes' aliases, which move T/T_ecu's frequency-domain fit
-    (:func:`dtid.identification.frf.closed_loop.engine_lag`, the guess): on a clean reference
+    (:func:`dtid.identification.frf.engine_lag.engine_lag`, the guess): on a clean reference
     recording lagging 50 ms and 120 ms a tooth-timer speed sensor made that fit 0.0528 and
     0.1217 s and eq. (9)'s 0.0488 and 0.1156 s; this fit gives 0.0494 and 0.1184 s with
     either (2026-12-03, ``tests/test_idle_loop.py``).
@@ -513,7 +513,7 @@ def stroke_gain(latched: np.ndarray, torque: np.ndarray) -> tuple[float, float]:
     test chirp and the controller's action vary the request enough for the slope.
 
     It is reported (``idle_loop.engine_gain``), and held by the search only where eq. (24)'s
-    is far from it (:func:`dtid.identification.pipeline.held_gain`): with it the truth fits
+    is far from it (:func:`dtid.identification.gain_choice.held_gain`): with it the truth fits
     better (the independent recordings' and 13 of the randomised trial's 20), but the searches
     do not end better (175 against 178 of the trial's 200 targets, a difference within the
     friction's scatter; docs/accuracy.md).
@@ -577,9 +577,3 @@ def _per_event(series: Series, grid: np.ndarray) -> np.ndarray:
     out = out[filled]
     out[~np.isfinite(out)] = series.value[0]
     return out
-
-
-def _held(series: Series, grid: np.ndarray) -> np.ndarray:
-    """The last value received at or before each grid time (zero before the first)."""
-    index = np.searchsorted(series.t, grid, side="right") - 1
-    return np.where(index >= 0, series.value[np.clip(index, 0, None)], 0.0)

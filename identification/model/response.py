@@ -3,7 +3,7 @@
 Eq. (16) compares the measured |G_DRV| with the model's; following the reading notes the model's
 is not an analytic transfer function but the simulated closed loop, driven by the same test
 signals and passed through the same estimator
-(:func:`dtid.identification.frf.closed_loop.cross_spectra`), so the estimator's own biases (the
+(:func:`dtid.identification.frf.spectra.cross_spectra`), so the estimator's own biases (the
 engine's torque hold, Welch's sweep-rate bias) cancel.
 
 "The same test signals" is taken literally: the model replays the recording's own test-torque
@@ -52,11 +52,11 @@ import numpy as np
 
 from dtid.identification.frf.closed_loop import (
     FrfEstimate,
-    cross_spectra,
     drivetrain_magnitude,
     engine_magnitude,
     request_magnitude,
 )
+from dtid.identification.frf.spectra import cross_spectra
 from dtid.identification.model.idle_loop import SAMPLES_PER_STROKE, IdleLoop
 from dtid.identification.samples.testdata import Series
 from dtid.simulator.controller import IdleController

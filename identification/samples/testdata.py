@@ -29,6 +29,20 @@ class Series:
         lo, hi = np.searchsorted(self.t, [start_s, end_s])
         return Series(self.t[lo:hi], self.value[lo:hi])
 
+    def held(self, times: np.ndarray, before: float | None = None) -> np.ndarray:
+        """The value last received at or before each of ``times`` (s), as a receiver holds it.
+
+        Parameters
+        ----------
+        times
+            Times to read the held value at, s.
+        before
+            The value before the first sample; None takes the first sample's.
+        """
+        index = np.searchsorted(self.t, times, side="right") - 1
+        held = self.value[np.clip(index, 0, len(self) - 1)]
+        return held if before is None else np.where(index >= 0, held, before)
+
 
 @dataclass(frozen=True)
 class TestData:

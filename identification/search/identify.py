@@ -260,7 +260,7 @@ def engine_gain(tests: Sequence[MeasuredTest]) -> float:
     Each recording's K read stroke by stroke is reported beside it
     (:func:`dtid.identification.model.idle_loop.stroke_gain`, the identification JSON's
     ``idle_loop.engine_gain``): closer to the truth, but the search holds it only where eq.
-    (24)'s is far from it (:func:`dtid.identification.pipeline.held_gain` says why)."""
+    (24)'s is far from it (:func:`dtid.identification.gain_choice.held_gain` says why)."""
     gains = [e.engine_gain for t in tests for e in t.estimates if np.isfinite(e.engine_gain)]
     if not gains:
         raise AnalysisError(
