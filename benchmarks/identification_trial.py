@@ -16,11 +16,14 @@ asserted.
     PYTHONPATH=. python benchmarks/identification_trial.py  # the reference vehicle as truth
     PYTHONPATH=. python benchmarks/identification_trial.py --truth 1  # a random vehicle
     PYTHONPATH=. python benchmarks/identification_trial.py --truth 1 --profile-points 7
+    PYTHONPATH=. python benchmarks/identification_trial.py --truth 1 --sweep 0.5 20  # as the
+        # independent recordings sweep, past the strokes' Nyquist frequency
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -159,13 +162,28 @@ def main() -> None:
         "--profile-points", type=int, default=0, help="profile grid points; 0: no intervals"
     )
     parser.add_argument("--json", help="write the profiles (values, statistic, margin) here")
+    parser.add_argument(
+        "--sweep",
+        nargs=2,
+        type=float,
+        metavar=("F1", "F2"),
+        default=(PLAN.f1_hz, PLAN.f2_hz),
+        help="the chirps' sweep, Hz (default %(default)s; the independent recordings' 0.5 20)",
+    )
+    parser.add_argument(
+        "--setpoint", type=float, help="the vehicle's idle speed, rpm (default: drawn)"
+    )
     args = parser.parse_args()
 
     truth, vehicle = draw_truth(args.truth), draw_vehicle(args.truth)
+    if args.setpoint is not None:  # the other draws stay
+        controller = dataclasses.replace(vehicle.controller, setpoint_rpm=args.setpoint)
+        vehicle = dataclasses.replace(vehicle, controller=controller)
+    plan = dataclasses.replace(PLAN, f1_hz=args.sweep[0], f2_hz=args.sweep[1])
     noise_seed = 100 + args.truth if args.noise_seed is None else args.noise_seed
     measured = MeasuredTest.from_data(
         "simulated",
-        from_simulation(simulate(truth, PLAN, vehicle, seed=noise_seed)),
+        from_simulation(simulate(truth, plan, vehicle, seed=noise_seed)),
         0.25,
         VehicleData()
         if args.engine_unknown

@@ -560,7 +560,7 @@ def test_a_right_model_is_adequate_and_the_screen_names_what_it_cannot_see(selec
     assert "cannot tell" in diagnosis.sentence() and "torque_sensor_gain" in diagnosis.sentence()
     # a check significant on the identifying runs whose held-out run does not follow (the blind
     # trial's case 22, a two-stage clutch): adequate, the mechanism neither named nor listed
-    from dtid.identification.diagnosis.refit import Candidate
+    from dtid.identification.diagnosis.candidates import Candidate
 
     row = kernel_parameters(reference.as_array())
     scores = {"fit": {"r @ 5 N*m": 0.05}, "validation": {"r @ 2 N*m": 0.2}}
@@ -1020,8 +1020,8 @@ def test_a_parameter_identified_at_zero_has_no_relative_shift(selections, refere
 def test_a_candidate_without_a_held_out_run_is_written_as_strict_json() -> None:
     """A diagnosis of recordings whose validation run was refused has no held-out figure: the
     JSON carries null there (its schema allows it), not a NaN strict JSON refuses."""
+    from dtid.identification.diagnosis.candidates import Candidate
     from dtid.identification.diagnosis.imbalance import StrokeTest
-    from dtid.identification.diagnosis.refit import Candidate
     from dtid.simulator.parameters import reference_parameters
 
     row = kernel_parameters(reference_parameters().as_array())

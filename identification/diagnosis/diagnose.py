@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from dtid.errors import AnalysisError, ConfigError
+from dtid.identification.diagnosis.candidates import Absorbed, Candidate, Screened
 from dtid.identification.diagnosis.engine_path import (
     diagnose_engine,
     engine_interval,
@@ -40,10 +41,7 @@ from dtid.identification.diagnosis.imbalance import (
 from dtid.identification.diagnosis.mismatch import DRAWS, MismatchMap, mismatch_map
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
-    Absorbed,
-    Candidate,
     Refit,
-    Screened,
     diagnose_mechanisms,
 )
 from dtid.identification.model.test_setup import MeasuredTest

@@ -44,6 +44,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from dtid.identification.diagnosis.candidates import Candidate, Screened
 from dtid.identification.diagnosis.mismatch import (
     MismatchMap,
     RunResidual,
@@ -54,10 +55,8 @@ from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
     TEST_REALIZATIONS,
     TEST_SEED,
-    Candidate,
     Extra,
     Refit,
-    Screened,
     with_mechanism,
 )
 from dtid.identification.pipeline import RunSelection

@@ -43,13 +43,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from dtid.identification.diagnosis.candidates import Candidate, Screened
 from dtid.identification.diagnosis.mismatch import sidak
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
-    Candidate,
     Extra,
     Refit,
-    Screened,
     with_mechanism,
 )
 from dtid.identification.model.cylinder_spread import (
