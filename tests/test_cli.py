@@ -85,6 +85,9 @@ def test_identify_names_an_engine_that_lags_its_request(
         assert lag["gain"] == pytest.approx(0.9, rel=0.2)
     assert "the engine lags its torque request" in caplog.text
     assert "dtid diagnose` fits the lag" in caplog.text
+    printed = capsys.readouterr().out  # without profiles, the report says what it lacks
+    assert "no intervals (--profile-points 0)" in printed
+    assert f"predicted by dtid plan --prior {out} --after {recording}" in printed
     frf = tmp_path / "frf.json"  # the FRF's own page says it per run too
     assert main(["frf", str(recording), "--json", str(frf)]) == 0
     assert "engine lag 0.0" in capsys.readouterr().out
