@@ -334,3 +334,12 @@ def test_cross_spectra_are_scipys_welch_estimate(nperseg: int) -> None:
         assert s_zx[row] == pytest.approx(signal.csd(z, x[row], **welch)[1], rel=1e-10, abs=1e-14)
     single = cross_spectra(z, y[0], x[0], 37.5, nperseg)
     assert single[1] == pytest.approx(s_zy[0], rel=1e-12)
+
+
+def test_a_series_is_read_as_a_receiver_holds_it() -> None:
+    """The value last received at or before each time: a sample stamped at a time counts at
+    that time, before the first sample the first value or the one given."""
+    series = Series(np.array([1.0, 2.0, 2.0, 4.0]), np.array([10.0, 20.0, 21.0, 40.0]))
+    times = np.array([0.5, 1.0, 1.5, 2.0, 3.9, 4.0, 9.0])
+    assert series.held(times).tolist() == [10.0, 10.0, 10.0, 21.0, 21.0, 40.0, 40.0]
+    assert series.held(times, before=0.0).tolist() == [0.0, 10.0, 10.0, 21.0, 21.0, 40.0, 40.0]
