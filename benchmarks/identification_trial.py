@@ -37,7 +37,11 @@ from dtid.identification.search.identify import Objective, SearchSettings, refin
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.simulator.controller import IdleController
 from dtid.simulator.engine import EngineGeometry
-from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
+from dtid.simulator.parameters import (
+    DrivetrainParameters,
+    load_parameters,
+    reference_parameters,
+)
 from dtid.simulator.simulate import SimulationOptions, simulate
 from dtid.simulator.vehicle_data import VehicleData
 
@@ -47,10 +51,10 @@ PLAN = TestPlan(amplitudes_nm=(5.0, 10.0, 2.0), validation_nm=0.0)
 """The test: the paper's amplitudes, 60 s chirps, the validation chirp last."""
 
 
-def draw_truth(index: int) -> DrivetrainParameters:
-    """The reference for index 0, else a drivetrain within +-40 % of it, its loss torque
-    10-18 N*m and engine gain 0.85-1.05."""
-    reference = reference_parameters()
+def draw_truth(index: int, around: DrivetrainParameters | None = None) -> DrivetrainParameters:
+    """The reference (or ``around``) for index 0, else a drivetrain within +-40 % of it, its
+    loss torque 10-18 N*m and engine gain 0.85-1.05."""
+    reference = reference_parameters() if around is None else around
     if index == 0:
         return reference
     rng = np.random.default_rng(index)
@@ -173,9 +177,15 @@ def main() -> None:
     parser.add_argument(
         "--setpoint", type=float, help="the vehicle's idle speed, rpm (default: drawn)"
     )
+    parser.add_argument(
+        "--around",
+        help="draw the drivetrains around this parameter file's (a vehicle file's "
+        "[drivetrain]) instead of the reference's; the search's prior stays the reference",
+    )
     args = parser.parse_args()
 
-    truth, vehicle = draw_truth(args.truth), draw_vehicle(args.truth)
+    around = None if args.around is None else load_parameters(args.around)
+    truth, vehicle = draw_truth(args.truth, around), draw_vehicle(args.truth)
     if args.setpoint is not None:  # the other draws stay
         controller = dataclasses.replace(vehicle.controller, setpoint_rpm=args.setpoint)
         vehicle = dataclasses.replace(vehicle, controller=controller)
