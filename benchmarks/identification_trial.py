@@ -18,6 +18,8 @@ asserted.
     PYTHONPATH=. python benchmarks/identification_trial.py --truth 1 --profile-points 7
     PYTHONPATH=. python benchmarks/identification_trial.py --truth 1 --sweep 0.5 20  # as the
         # independent recordings sweep, past the strokes' Nyquist frequency
+    PYTHONPATH=. python benchmarks/identification_trial.py --truth 1 --sweep 0.5 20 \
+        --around ../shared/independent/vehicle_1/truth.toml  # drivetrains drawn around another
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import argparse
 import dataclasses
 import json
 import time
+import tomllib
 
 import numpy as np
 
@@ -38,8 +41,9 @@ from dtid.identification.search.parameterization import THETA_NAMES, theta_from_
 from dtid.simulator.controller import IdleController
 from dtid.simulator.engine import EngineGeometry
 from dtid.simulator.parameters import (
+    NAMES,
     DrivetrainParameters,
-    load_parameters,
+    parse_parameters,
     reference_parameters,
 )
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -62,6 +66,16 @@ def draw_truth(index: int, around: DrivetrainParameters | None = None) -> Drivet
     values = reference.as_array() * np.r_[factors, 1.0, 1.0]
     values[10], values[11] = rng.uniform(10.0, 18.0), rng.uniform(0.85, 1.05)
     return DrivetrainParameters.from_array(values)
+
+
+def _drivetrain_of(path: str) -> DrivetrainParameters:
+    """The drivetrain parameters of a TOML file: its ``[drivetrain]`` table's (or its top
+    level's) keys among :data:`NAMES`, the rest ignored (an independent recording's truth file
+    has an idle set-point and noise levels beside them)."""
+    with open(path, "rb") as handle:
+        document = tomllib.load(handle)
+    table = document.get("drivetrain", document)
+    return parse_parameters({n: table[n] for n in NAMES if n in table}, source=path)
 
 
 def draw_vehicle(index: int) -> SimulationOptions:
@@ -184,7 +198,7 @@ def main() -> None:
     )
     args = parser.parse_args()
 
-    around = None if args.around is None else load_parameters(args.around)
+    around = None if args.around is None else _drivetrain_of(args.around)
     truth, vehicle = draw_truth(args.truth, around), draw_vehicle(args.truth)
     if args.setpoint is not None:  # the other draws stay
         controller = dataclasses.replace(vehicle.controller, setpoint_rpm=args.setpoint)
