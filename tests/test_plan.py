@@ -26,7 +26,6 @@ from dtid.identification.planning.design import (
     PRECISION_NAMES,
     SIGMAS,
     Design,
-    plan_document,
     predict,
     predict_worst,
     recommend,
@@ -36,6 +35,7 @@ from dtid.identification.planning.design import (
     wider_than_targets,
 )
 from dtid.identification.planning.design import information as run_information
+from dtid.identification.planning.document import plan_document
 from dtid.identification.planning.information import (
     RESOLUTION_HZ,
     PlanInformation,

@@ -31,10 +31,10 @@ from dtid.identification.planning.design import (
     VALIDATION_NM,
     Design,
     parse_targets,
-    plan_document,
     plan_test,
     recorded_designs,
 )
+from dtid.identification.planning.document import plan_document
 from dtid.identification.planning.information import DEFAULT_SEEDS
 from dtid.identification.planning.spread import (
     DEFAULT_SPREAD_PERCENT,

@@ -770,11 +770,11 @@ class Worker:
         from dtid.identification.planning.design import (
             DEFAULT_MAX_TIME_S,
             parse_targets,
-            plan_document,
             plan_test,
             run_designs,
             shortest_test_s,
         )
+        from dtid.identification.planning.document import plan_document
         from dtid.jsonfile import write_json
 
         fit = report.fit
