@@ -239,12 +239,13 @@ def unprofiled_note(follow_up: str | None) -> str:
     Without intervals nothing says which values the recordings pin: on the independent
     vehicle_1 the search put J3 +18 % and c23 +15 % off the truth where its profiles' intervals
     run -48/+35 % for c23 and ``dtid plan --after`` predicts 25 % and 26 % at 2 sigma for J3
-    and c23 (docs/accuracy.md).
+    and c23; on a random vehicle like it the search closed the gear play (eq. 17 0.0889) where
+    the profile of c23 restarted it at 0.0737, the truth's basin (docs/accuracy.md).
     """
     note = (
         "no intervals (--profile-points 0): these values come without their precision, and in a "
         "flat valley of eq. (17) some may lie far from the vehicle's; the default profiles give "
-        "each parameter's 95 % interval and verdict"
+        "each parameter's 95 % interval and verdict, and restart the search where one fits better"
     )
     if follow_up:
         note += f", and the precision these recordings reach is predicted by {follow_up}"
