@@ -1,10 +1,10 @@
 """Why a chirp run's coherence is low, and what to judge such a run by.
 
-A run whose FRF would be mostly noise is refused (:data:`dtid.identification.frf.closed_loop.
-MIN_MEDIAN_COHERENCE`), with its cause: a chirp the strokes fold into the band is excitation, not
-noise (:func:`stroke_coherence`); an engine that delivers its request with a lag leaves too
-little test torque in the upper band (:func:`incoherence_cause`); otherwise the test was
-disturbed.
+A run whose FRF would be mostly noise is refused
+(:data:`~dtid.identification.frf.closed_loop.MIN_MEDIAN_COHERENCE`), with its cause: a chirp the
+strokes fold into the band is excitation, not noise (:func:`stroke_coherence`); an engine that
+delivers its request with a lag leaves too little test torque in the upper band
+(:func:`incoherence_cause`); otherwise the test was disturbed.
 """
 
 from __future__ import annotations
