@@ -91,8 +91,9 @@ class FrfEstimate:
         without a torque request (:data:`REQUEST_GAIN_RANGE`).
     stroke_coherence
         The measured torque's coherence with the test torque as the strokes took it, 1
-        (:func:`stroke_coherence`): what :attr:`torque_coherence` would be if the part of a
-        chirp the strokes fold into the band counted as excitation, not as noise.
+        (:func:`~dtid.identification.frf.low_coherence.stroke_coherence`): what
+        :attr:`torque_coherence` would be if the part of a chirp the strokes fold into the band
+        counted as excitation, not as noise.
     """
 
     run: ChirpRun
@@ -139,7 +140,8 @@ class FrfEstimate:
     @cached_property
     def engine_lag(self) -> EngineLag | None:
         """The engine's lag behind its request fitted to this run's T/T_ecu, fitted once
-        (:func:`run_lag`); None without a torque request or without a lag."""
+        (:func:`~dtid.identification.frf.engine_lag.run_lag`); None without a torque request or
+        without a lag."""
         return run_lag(
             self.frequency_hz, self.eng, self.eng_phase, self.torque_coherence, self.speed_rpm
         )
