@@ -197,8 +197,8 @@ def print_report(
         print(f"wider than dtid plan's default targets (95 % interval, % of the value): {wide}")
         if follow_up:
             print(f"the follow-up test that reaches them: {follow_up}")
-    elif not document["intervals"] and not document.get("profiles"):
-        print(unprofiled_note(follow_up))
+    elif not (document["intervals"] or document.get("profiles") or document.get("target_tests")):
+        print(unprofiled_note(follow_up))  # a campaign round's target tests say what it reaches
     for role, values in document["nrmse"].items():
         for label, value in values.items():
             print(f"NRMSE {role:<10} {label}: {value:.3f}")
