@@ -561,15 +561,15 @@ def test_a_campaign_round_tests_each_target_at_its_half_width() -> None:
     their defaults) as a half-width around the identified value, a value near 0 replaced by the
     one the plan is relative to (5 % of a passenger car's largest friction: 0.2 N*m); outside a
     campaign, none."""
-    from dtid.identification.service.worker import _campaign_widths
+    from dtid.identification.service.follow_up import campaign_widths
 
-    assert _campaign_widths(None) is None
-    widths = _campaign_widths({"targets": {"c12": 2.0}})
+    assert campaign_widths(None) is None
+    widths = campaign_widths({"targets": {"c12": 2.0}})
     assert widths is not None
     got = widths({"c12": 300.0, "Tc12": 0.0, "x1": 0.4})
     assert got == pytest.approx({"c12": 6.0, "Tc12": 0.2 * 0.2, "x1": 0.05 * 0.4})
     with pytest.raises(ConfigError, match="eps99"):
-        _campaign_widths({"targets": {"eps99": 5.0}})
+        campaign_widths({"targets": {"eps99": 5.0}})
 
 
 def test_intervals_wider_than_the_targets_are_named_against_the_value_they_are_relative_to(

@@ -39,6 +39,11 @@ The identification starts when the identification chirps are complete (and
 :data:`dtid.identification.pipeline.HOLD_OUT_S` of data past them arrived), in a thread, while the
 validation chirp is recorded. Transport: ipc by default; a ``tcp://`` endpoint without a host
 means 127.0.0.1.
+
+This module is the transport and the sessions' bookkeeping; what it computes and writes for a
+session lies beside it: :mod:`~dtid.identification.service.live` (a session's data and FRFs),
+:mod:`~dtid.identification.service.follow_up` (the follow-up test, a campaign round's
+precision) and :mod:`~dtid.identification.service.session_files` (the files beside the log).
 """
 
 from __future__ import annotations
@@ -54,7 +59,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
 import zmq
 
 from dtid.acquisition.config import PipelineConfig, SafetyConfig
@@ -64,18 +68,33 @@ from dtid.acquisition.server import bind
 from dtid.acquisition.stream import KINDS, REPLAY_PAGE
 from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
-from dtid.identification.diagnosis.mismatch import adequacy, adequacy_of
+from dtid.identification.diagnosis.mismatch import adequacy_of
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
-from dtid.identification.planning.agreement import agreement, plan_scatter
-from dtid.identification.planning.spread import DEFAULT_VEHICLES, RECORDED
+from dtid.identification.planning.spread import DEFAULT_VEHICLES
 from dtid.identification.samples.recording import load_recording
-from dtid.identification.search.identify import SearchSettings, amplitude_levels
+from dtid.identification.search.identify import SearchSettings
+from dtid.identification.service.follow_up import (
+    FOLLOW_UP_FILE,
+    PreviousRound,
+    campaign_widths,
+    information_at_prior,
+    plan_follow_up,
+    precision_so_far,
+    previous_round,
+)
 from dtid.identification.service.live import EventLog, LiveSession
-from dtid.simulator.controller import IdleController
+from dtid.identification.service.session_files import (
+    CLOSE_WAIT_S,
+    IDENTIFICATION_FILE,
+    rewrite_report,
+    write_diagnosis,
+    write_result,
+    write_session_report,
+)
+from dtid.jsonfile import write_json
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
-from dtid.simulator.simulate import SimulationOptions
 from dtid.simulator.vehicle_data import VehicleData
 
 if TYPE_CHECKING:  # imported where used: planning is needed only with a campaign or follow-up
@@ -98,8 +117,6 @@ POLL_MS = 100
 """Longest wait for a message before the loop looks at its sessions again, ms."""
 DRAIN = 2000
 """Most messages taken from the stream before the sessions are advanced."""
-FOLLOW_UP_FILE = "follow-up.json"
-"""The follow-up test's plan beside the session's log (``[worker] plan_follow_up``)."""
 
 
 def leave_a_core_to_the_bus() -> int:
@@ -194,7 +211,7 @@ class _Session:
     """A campaign round's earlier rounds, read from their logs (identified together with it)."""
     precision: dict[str, float] | None = None
     """Precision the campaign's runs reach so far, % at 2 sigma (after each identifying run)."""
-    before: tuple[dict[str, float], dict[str, float]] | None = None
+    before: PreviousRound | None = None
     """A campaign round's previous round: what it identified and the scatter its plan predicted
     for the runs recorded then (absolute, 1 sigma); None in round 1 or unreadable."""
     fit: dict[str, Any] | None = None
@@ -539,17 +556,11 @@ class Worker:
         campaign = live.campaign
         if campaign is None or str(campaign.get("id")) in self._campaigns:
             return
-        key, vehicle = str(campaign.get("id")), self.options.vehicle
+        key = str(campaign.get("id"))
 
         def run() -> None:
-            from dtid.identification.planning.design import planning_prior
-            from dtid.identification.planning.information import measure_information
-
             try:
-                prior, _ = planning_prior(self.prior)
-                info = measure_information(
-                    prior, live.identify_nm, vehicle=vehicle if vehicle.given else None
-                )
+                info = information_at_prior(self.prior, live.identify_nm, self.options.vehicle)
             except Exception:  # the precision so far is a help; the round goes on without it
                 logger.exception("campaign %s: the information at the prior", key)
                 return
@@ -558,45 +569,23 @@ class Worker:
         threading.Thread(target=run, name=f"information-{key}", daemon=True).start()
 
     def _precision_so_far(self, session: _Session, live: LiveSession) -> None:
-        """In a campaign round: the precision the runs reach so far, the earlier rounds' recorded
-        runs and this round's identifying runs with an FRF, predicted with the last round's
-        planning information (linearised at what it identified; in round 1 at the prior);
-        published as ``precision`` in a ``progress`` message after each run (from the first
-        run at which the information matrix is regular: two amplitudes)."""
-        from dtid.identification.planning.design import AMPLITUDE_MATCH, SIGMAS, Design, predict
-
+        """In a campaign round, publish the precision its runs reach so far
+        (:func:`dtid.identification.service.follow_up.precision_so_far`) as ``precision`` in a
+        ``progress`` message, after each run from the first at which it can be said."""
         known = self._campaigns.get(str((live.campaign or {}).get("id")))
         if known is None:
             return
         info, recorded = known
-        levels = live.identify_nm
         runs = [
             c.frf.run
             for c in sorted(live.chirps.values(), key=lambda c: c.index)
             if c.frf is not None
-            and any(abs(c.amplitude_nm - a) <= AMPLITUDE_MATCH * a for a in levels)
         ]
-        new = [
-            Design(
-                (min(levels, key=lambda a: abs(a - run.amplitude_nm)),),
-                (1,),
-                run.duration_s,
-                *sorted((run.f1_hz, run.f2_hz)),
-                validation_nm=0.0,
-            )
-            for run in runs
-        ]
-        if not new:
+        so_far = precision_so_far(info, recorded, runs, live.identify_nm)
+        if so_far is None:
             return
-        try:
-            with np.errstate(all="ignore"):
-                precision = predict(info, None, [*recorded, *new])
-        except (DtidError, np.linalg.LinAlgError):
-            return  # one amplitude so far: a stiffness and its free play are not yet separable
-        if not all(np.isfinite(v) and v >= 0 for v in precision.values()):
-            return
-        session.precision = {k: round(100 * SIGMAS * v, 2) for k, v in precision.items()}
-        self._progress(session, self._state(session), precision_runs=len(recorded) + len(new))
+        session.precision, counted = so_far
+        self._progress(session, self._state(session), precision_runs=counted)
 
     def _start_identification(self, session: _Session, live: LiveSession, data: Any) -> None:
         options = self.options
@@ -619,9 +608,12 @@ class Worker:
                         )
                         for path in logs
                     ]
-                    session.before = self._previous_round(Path(logs[-1]))
+                    folder = Path(logs[-1]).parent
+                    session.before = previous_round(
+                        self._json_path(folder), folder / FOLLOW_UP_FILE
+                    )
                 selection = live.identification_selection(data, session.earlier)
-                widths = _campaign_widths(live.campaign) if options.profile_points else None
+                widths = campaign_widths(live.campaign) if options.profile_points else None
                 report = identify_runs(
                     selection,
                     self.prior,
@@ -640,20 +632,9 @@ class Worker:
         self._progress(session, "identifying")
         session.thread.start()
 
-    def _previous_round(self, log: Path) -> tuple[dict[str, float], dict[str, float]] | None:
-        """What the worker identified from the previous campaign round (its folder's
-        identification JSON) and the scatter its plan predicted then (its follow-up plan);
-        None, with a warning, where either is missing or unreadable (the round is then identified
-        without the warm start and the rounds are not compared)."""
-        folder = log.parent
-        paths = (self.options.json_path or folder / "identification.json", folder / FOLLOW_UP_FILE)
-        try:
-            identified, plan = (_read_json(path) for path in paths)
-            values = {str(k): float(v) for k, v in identified["parameters"].items()}
-            return values, plan_scatter(plan)
-        except (OSError, KeyError, TypeError, ValueError, AttributeError) as error:
-            logger.warning("the previous round (%s) is not compared: %s", folder, error)
-            return None
+    def _json_path(self, folder: Path) -> Path:
+        """The identification's JSON of the session whose log lies in ``folder``."""
+        return self.options.json_path or folder / IDENTIFICATION_FILE
 
     @staticmethod
     def _validated_by_earlier(session: _Session, live: LiveSession) -> IdentificationReport:
@@ -666,23 +647,17 @@ class Worker:
         return session.report.validated(selection) if selection.tests else session.report
 
     def _conclude(self, session: _Session, live: LiveSession, report: IdentificationReport) -> None:
-        """Publish the result, write it and plot it."""
-        from dtid.jsonfile import write_json
-
+        """Publish the result and write it; diagnose, plan the follow-up and write the report as
+        the options ask."""
         document = report.as_dict()
         session.result = document
         self._publish("result", document)
         folder = live.log_path.parent
-        json_path = self.options.json_path or folder / "identification.json"
+        plot_path = None
+        if self.options.plot:
+            plot_path = self.options.plot_path or folder / "identification.png"
         try:
-            write_json(json_path, document)
-            written = [str(json_path)]
-            if self.options.plot:
-                from dtid.identification.plots import plot_fit
-
-                plot_path = self.options.plot_path or folder / "identification.png"
-                plot_fit(*report.fit_curves(), plot_path)
-                written.append(str(plot_path))
+            written = write_result(report, document, self._json_path(folder), plot_path)
         except DtidError as error:
             self.unwritten.add(session.id)
             self._progress(session, "error", message=str(error))
@@ -695,39 +670,16 @@ class Worker:
             diagnosis_path = Path(files[0]) if files else None
         if self.options.plan_follow_up or live.campaign is not None:
             written += self._plan(session, report, folder, live.campaign)
-        written += self._report(session, live, diagnosis_path)
-        self._progress(session, stage, files=written)
-
-    def _report(self, session: _Session, live: LiveSession, diagnosis: Path | None) -> list[str]:
-        """Write the session's HTML report beside its log; the files written."""
-        from dtid.identification.html_report import REPORT_FILE, ReportInputs, write_report
-
-        path = live.log_path.parent / REPORT_FILE
-        session.report_inputs = (
-            self.options.json_path or live.log_path.parent / "identification.json",
-            diagnosis,
-        )
-        figure = diagnosis.with_suffix(".png") if diagnosis is not None else None
+        session.report_inputs = (self._json_path(folder), diagnosis_path)
         try:
-            inputs = ReportInputs(
-                recordings=[live.recording()],
-                files=[live.log_path],
-                live=True,
-                identification=session.result,
-                diagnosis=_read_json(diagnosis) if diagnosis is not None else None,
-                diagnosis_figure=figure if figure is not None and figure.exists() else None,
-                title=live.log_path.parent.name,
-            )
-            write_report(inputs, path)
+            written.append(str(write_session_report(live, document, diagnosis_path)))
         except DtidError as error:
             self._progress(session, "error", message=f"the report: {error}")
-            return []
-        return [str(path)]
+        self._progress(session, stage, files=written)
 
     def _diagnose(self, session: _Session, report: IdentificationReport, folder: Path) -> list[str]:
         """Diagnose the validated identification, publish and write it; the files written."""
         from dtid.identification.diagnosis.diagnose import diagnose_report
-        from dtid.jsonfile import write_json
 
         try:
             diagnosis = diagnose_report(report)
@@ -735,20 +687,12 @@ class Worker:
             self._progress(session, "error", message=f"the diagnosis: {error}")
             return []
         session.fit = adequacy_of(diagnosis.mismatch)
-        document = diagnosis.as_dict()
-        self._publish("diagnosis", {"session": session.id, **document})
-        path = folder / "diagnosis.json"
+        self._publish("diagnosis", {"session": session.id, **diagnosis.as_dict()})
         try:
-            write_json(path, document)
-            written = [str(path)]
-            if self.options.plot:
-                from dtid.identification.diagnosis.figure import plot_mismatch
-
-                written.append(str(plot_mismatch(diagnosis, path.with_suffix(".png"))))
+            return write_diagnosis(diagnosis, folder, self.options.plot)
         except DtidError as error:
             self._progress(session, "error", message=str(error))
             return []
-        return written
 
     def _plan(
         self,
@@ -757,62 +701,20 @@ class Worker:
         folder: Path,
         campaign: Mapping[str, Any] | None,
     ) -> list[str]:
-        """Plan the follow-up test, publish and write it; the files written.
-
-        In a campaign (:mod:`dtid.acquisition.campaign`) the targets are the campaign's and the
-        next round must fit in its budget left (at least the shortest test is planned, so the
-        campaign sees how long the next round would be); a failure is published as a plan
-        without a test and with the ``error``, so the campaign stops saying why. The result's
-        profile intervals or, in a campaign, its target tests (with ``profile_points`` > 0)
-        confirm the targets the prediction says are met, or keep them unmet (``intervals`` in
-        the plan).
-        """
-        from dtid.identification.planning.design import (
-            DEFAULT_MAX_TIME_S,
-            parse_targets,
-            plan_test,
-            run_designs,
-            shortest_test_s,
-        )
-        from dtid.identification.planning.document import plan_document
-        from dtid.jsonfile import write_json
-
-        fit = report.fit
-        assert fit is not None
-        validation = report.validation
-        held_out = amplitude_levels(
-            t.estimates[i].run.amplitude_nm
-            for t, runs in (
-                zip(validation.tests, validation.runs, strict=True) if validation else ()
-            )
-            for i in runs
-        )
-        idle = sum(t.setpoint_rpm for t in fit.tests) / len(fit.tests)
-        max_time_s = DEFAULT_MAX_TIME_S
+        """Plan the follow-up test (:func:`dtid.identification.service.follow_up.plan_follow_up`),
+        publish and write it; the files written. In a campaign a failure is published as a plan
+        without a test and with the ``error``, so the campaign stops saying why."""
+        assert session.result is not None
         try:
-            targets = parse_targets(
-                [
-                    f"{name}={value}"
-                    for name, value in ((campaign or {}).get("targets") or {}).items()
-                ]
-            )
-            if campaign is not None:
-                left = float(campaign["max_time_s"]) - float(campaign["spent_s"])
-                left -= float(campaign["test_time_s"])  # this round's
-                max_time_s = max(left, shortest_test_s())
-            info, recommendation = plan_test(
-                report.identification.parameters,
-                targets,
-                self.options.safety,
-                max_time_s=max_time_s,
-                validation_nm=0.0,
-                options=SimulationOptions(controller=IdleController(setpoint_rpm=idle)),
-                recorded=run_designs(fit.tests, fit.runs),
-                held_out_nm=held_out,
-                vehicle=self.options.vehicle if self.options.vehicle.given else None,
-                spread=RECORDED,
+            follow_up = plan_follow_up(
+                report,
+                session.result,
+                safety=self.options.safety,
+                vehicle=self.options.vehicle,
                 vehicles=self.options.plan_vehicles,
-                identification=session.result,
+                campaign=campaign,
+                before=session.before,
+                fit=session.fit,
             )
         except (DtidError, KeyError, TypeError, ValueError) as error:
             message = f"the follow-up plan: {error}"
@@ -823,25 +725,12 @@ class Worker:
                 )
             self._progress(session, "error", message=message)
             return []
-        limits = {
-            "max_amplitude_nm": self.options.safety.max_amplitude_nm,
-            "max_time_s": max_time_s,
-            "speed_window_rpm": self.options.safety.speed_window_rpm,
-        }
-        document = plan_document(info, recommendation, targets, limits)
-        if session.before is not None and recommendation.recorded:
-            values, sd = session.before
-            document["agreement"] = agreement(
-                values, sd, report.parameters, plan_scatter(document)
-            ).as_dict()
         if campaign is not None:
-            document["fit"] = session.fit or adequacy(report)
-        if campaign is not None:
-            self._campaigns[str(campaign.get("id"))] = (info, list(recommendation.recorded))
-        self._publish("plan", {"session": session.id, **document})
+            self._campaigns[str(campaign.get("id"))] = (follow_up.information, follow_up.recorded)
+        self._publish("plan", {"session": session.id, **follow_up.document})
         path = folder / FOLLOW_UP_FILE
         try:
-            write_json(path, document)
+            write_json(path, follow_up.document)
         except DtidError as error:
             self._progress(session, "error", message=str(error))
             return []
@@ -860,7 +749,7 @@ class Worker:
             self._progress(session, "done" if status == "completed" else status)
         if session.live is not None and session.report_inputs is not None:
             thread = threading.Thread(
-                target=_rewrite_report,
+                target=rewrite_report,
                 args=(session.live, *session.report_inputs),
                 name=f"report-{session.id}",
                 daemon=True,
@@ -911,64 +800,3 @@ class Worker:
                 self._pub.send_multipart([topic.encode(), body.encode()])
             for callback in self.listeners:
                 callback(topic, document)
-
-
-def _campaign_widths(
-    campaign: Mapping[str, Any] | None,
-) -> Callable[[Mapping[str, float]], Mapping[str, float]] | None:
-    """In a campaign round, what the identification's target tests are given: from the
-    identified values, each campaign target's half-width (SI units); None outside a campaign.
-
-    Raises
-    ------
-    ConfigError
-        If the campaign's targets do not parse.
-    """
-    if campaign is None:
-        return None
-    from dtid.identification.planning.design import parse_targets, target_half_widths
-
-    targets = parse_targets(
-        [f"{name}={value}" for name, value in (campaign.get("targets") or {}).items()]
-    )
-    return lambda theta: target_half_widths(theta, targets)
-
-
-def _read_json(path: Path) -> dict[str, Any]:
-    """A JSON document the worker wrote itself."""
-    return dict(json.loads(path.read_text()))
-
-
-CLOSE_WAIT_S = 30.0
-"""Longest wall time the worker waits, after a session's end, for the daemon to close its log
-(an .mf4 session's conversion included) before it rewrites the report from the files."""
-
-
-def _rewrite_report(live: LiveSession, identification: Path, diagnosis: Path | None) -> None:
-    """The session's report again, from the closed log, once the daemon's metadata says it is
-    closed (the end event comes before the close). Without metadata beside the log (a log that
-    is not the daemon's) the live report stays."""
-    from dtid.acquisition.metadata import session_log_metadata
-    from dtid.identification.html_report import REPORT_FILE, gather, write_report
-
-    log = live.log_path
-    deadline = time.monotonic() + CLOSE_WAIT_S
-    while True:
-        try:
-            metadata, being_written = session_log_metadata(log), False
-        except DtidError:  # an .mf4 file still being written from its journal
-            metadata, being_written = None, True
-        if metadata is None and not being_written:
-            return
-        if metadata is not None and (metadata.get("integrity") or {}).get("closed"):
-            break
-        if time.monotonic() > deadline:
-            logger.warning("the daemon did not close %s within %.0f s", log, CLOSE_WAIT_S)
-            return
-        time.sleep(0.2)
-    try:
-        inputs = gather([log], live.interface, identification, diagnosis)
-        inputs.title = log.parent.name
-        write_report(inputs, log.parent / REPORT_FILE)
-    except DtidError as error:
-        logger.warning("the session's report from its closed log: %s", error)
