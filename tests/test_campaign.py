@@ -262,7 +262,9 @@ def test_campaign_adds_rounds_until_the_budget_is_spent(
         campaign=CampaignConfig(adaptive=True, max_time_s=240.0, replan_wait_s=600.0),
     )
     options = WorkerOptions(
-        settings=SearchSettings(popsize=2, generations=2, polish_evaluations=20, seed=3),
+        settings=SearchSettings(
+            popsize=2, generations=2, polish_evaluations=20, seed=3
+        ).single_start(),
         profile_points=0,
         plot=False,
         plan_vehicles=0,  # the plan for vehicles around: test_worker.py

@@ -155,6 +155,17 @@ class SearchSettings:
     newton_iterations: int = 20
     seed: int = 0
 
+    def single_start(self) -> SearchSettings:
+        """The same budget with one start (``--single-start``): the evolution's best member alone
+        polished and finished, without the gear coupling's scan. On the independent recordings
+        (2 cores, 2026-12-07) 35 and 25 s against the search's 57 and 51 s; vehicle_2 ends at
+        the search's point, vehicle_1 at eq. 17 0.0489 against 0.0478 (J3 +32, c23 +24, d23
+        +71 %: 4 of issue 15's 11 targets against 6); with a small budget a quarter of the time.
+        For runs whose subject is not the search (the worker's transport in the tests, replays
+        of many logs), not for a result to report.
+        """
+        return dataclasses.replace(self, polish_starts=1, scan_starts=0, final_starts=1)
+
 
 @dataclass
 class Objective:
