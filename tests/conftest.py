@@ -66,7 +66,8 @@ class CommandOutputs:
 @pytest.fixture(scope="session")
 def command_outputs(tmp_path_factory: pytest.TempPathFactory) -> CommandOutputs:
     """`dtid simulate`, `inspect`, `frf`, `identify` (c12 and eps12 free, a small search
-    budget, three profile points) and `diagnose` (of that identification) on a 20 s chirp test,
+    budget, three profile points) and `diagnose` (of that identification, two mechanisms of the
+    library: the whole library's document is tests/test_diagnosis.py's) on a 20 s chirp test,
     run once: their consumers check contracts and the report's text, not accuracy."""
     from dtid.cli import main
 
@@ -98,6 +99,7 @@ def command_outputs(tmp_path_factory: pytest.TempPathFactory) -> CommandOutputs:
             str(folder / "identification.json"),
             "--plot",
             str(folder / "diagnosis.png"),
+            *("--mechanisms", "gearbox_drag", "torque_lag"),  # screened: no refit, seconds
         ],
     }
     documents = {}
