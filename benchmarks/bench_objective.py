@@ -21,12 +21,13 @@ from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
 from dtid.identification.model import response as model_response
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import Objective, split_runs
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
 )
+from dtid.identification.search.runs import split_runs
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import simulate
 

@@ -48,7 +48,7 @@ from dtid.identification.planning.design import (
 from dtid.identification.planning.information import RESOLUTION_HZ
 from dtid.identification.planning.spread import DEFAULT_VEHICLES, RECORDED
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import amplitude_levels
+from dtid.identification.search.runs import amplitude_levels
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import reference_parameters

@@ -41,7 +41,7 @@ from dtid.identification.gain_choice import held_gain
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs, run_identification, validation_runs
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import engine_gain
+from dtid.identification.search.runs import engine_gain
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import simulate
 from dtid.simulator.vehicle_data import VehicleData

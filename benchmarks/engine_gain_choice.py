@@ -1,7 +1,7 @@
 """Which K the search holds: eq. (24)'s against the strokes' own, on random vehicles.
 
 Eq. (24) reads the engine's torque gain K as the mean of the measured |G_ENG|
-(:func:`dtid.identification.search.identify.engine_gain`); the idle loop also reads K stroke by
+(:func:`dtid.identification.search.runs.engine_gain`); the idle loop also reads K stroke by
 stroke, each stroke's mean torque against the request it latched (``idle_loop.engine_gain``).
 The search holds eq. (24)'s unless the two differ by more than
 :data:`dtid.identification.gain_choice.GAIN_DISAGREE` (:func:`dtid.identification.
@@ -30,8 +30,8 @@ import time
 
 from benchmarks.diagnosis_calibration import recording
 from dtid.identification.pipeline import identification_runs, run_identification
-from dtid.identification.search.identify import engine_gain
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
+from dtid.identification.search.runs import engine_gain
 from dtid.simulator.parameters import reference_parameters
 
 

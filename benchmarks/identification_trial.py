@@ -36,7 +36,8 @@ from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, run_identification
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import Objective, SearchSettings, refine
+from dtid.identification.search.identify import SearchSettings, refine
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.simulator.controller import IdleController
 from dtid.simulator.engine import EngineGeometry

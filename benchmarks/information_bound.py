@@ -43,7 +43,7 @@ from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import Objective
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,

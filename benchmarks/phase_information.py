@@ -34,7 +34,7 @@ import numpy as np
 from dtid.identification.frf import closed_loop
 from dtid.identification.model import response
 from dtid.identification.pipeline import identification_runs
-from dtid.identification.search.identify import engine_gain
+from dtid.identification.search.runs import engine_gain
 from dtid.simulator.parameters import INDEX, NAMES, DrivetrainParameters
 from dtid.simulator.vehicle_data import load_vehicle_data
 from dtid.workflow import measured_tests

@@ -55,13 +55,15 @@ from dtid.identification.planning.design import (
 from dtid.identification.planning.information import RESOLUTION_HZ, measure_information
 from dtid.identification.planning.spread import DEFAULT_SPREAD_PERCENT, RECORDED
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import Objective, SearchSettings, split_runs
+from dtid.identification.search.identify import SearchSettings
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
     passenger_car_bounds,
     theta_from_parameters,
 )
+from dtid.identification.search.runs import split_runs
 from dtid.identification.search.sensitivity import jacobian, linearised_step
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController

@@ -27,8 +27,8 @@ from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import engine_gain
 from dtid.identification.search.objective import nrmse
+from dtid.identification.search.runs import engine_gain
 from dtid.simulator.kernel import SPEED_AVERAGES
 from dtid.simulator.parameters import NAMES, DrivetrainParameters
 from dtid.simulator.simulate import simulate

@@ -16,7 +16,7 @@ import numpy as np
 from dtid.identification.frf.closed_loop import FrfEstimate
 from dtid.identification.frf.engine_lag import EngineLag
 from dtid.identification.model.test_setup import MeasuredTest
-from dtid.identification.search.identify import engine_gain
+from dtid.identification.search.runs import engine_gain
 
 GAIN_DISAGREE = 0.05
 """Relative difference between eq. (24)'s K and the strokes' own beyond which the search holds
@@ -31,7 +31,7 @@ engine lag left out lowers eq. (24)'s to 0.41-0.57 (docs/model-assumptions.md)."
 
 
 def model_gain(tests: Sequence[MeasuredTest]) -> float:
-    """K for the model: eq. (24) (:func:`dtid.identification.search.identify.engine_gain`),
+    """K for the model: eq. (24) (:func:`dtid.identification.search.runs.engine_gain`),
     but read stroke by stroke through the lag, over the runs given, for a recording whose model
     engine lags (``[model] engine_lag = "measured"``): a lag lowers |G_ENG|'s mean, which eq.
     (24) takes for K (0.40-0.57 for 0.91-0.96 on the blind trial's lagging engines)."""

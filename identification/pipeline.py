@@ -35,16 +35,12 @@ from dtid.identification.samples.testdata import Series, TestData
 from dtid.identification.search.analytic import inseparable
 from dtid.identification.search.identify import (
     Identification,
-    Objective,
     Progress,
     SearchSettings,
-    amplitude_levels,
     identify,
     identify_from,
-    runs_at,
-    split_runs,
 )
-from dtid.identification.search.objective import FAILED_NRMSE, nrmse
+from dtid.identification.search.objective import FAILED_NRMSE, Objective, nrmse
 from dtid.identification.search.parameterization import (
     PRIOR_SPAN,
     THETA_NAMES,
@@ -52,6 +48,7 @@ from dtid.identification.search.parameterization import (
     Parameterization,
     passenger_car_bounds,
 )
+from dtid.identification.search.runs import amplitude_levels, runs_at, split_runs
 from dtid.identification.search.start_values import start_thetas
 from dtid.identification.uncertainty.profile import THRESHOLD, Profile, profile, with_structure
 from dtid.identification.uncertainty.target_test import TargetTest, target_test
@@ -190,7 +187,7 @@ def identification_runs(
     identify_amplitudes: Sequence[float] | None = None,
     resolution_hz: float = DEFAULT_RESOLUTION_HZ,
 ) -> RunSelection:
-    """The identification runs (see :func:`dtid.identification.search.identify.split_runs`), held
+    """The identification runs (see :func:`dtid.identification.search.runs.split_runs`), held
     out."""
     return _select(tests, identify_amplitudes, False, resolution_hz)
 

@@ -25,13 +25,14 @@ from dtid.identification.frf.runs import find_runs
 from dtid.identification.model.response import ModelTest
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.analytic import inseparable
-from dtid.identification.search.identify import Objective, amplitude_levels
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     MIN_INERTIA_FRACTION,
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
 )
+from dtid.identification.search.runs import amplitude_levels
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters

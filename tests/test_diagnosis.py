@@ -46,7 +46,7 @@ from dtid.identification.model.cylinder_spread import (
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs, validation_runs
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import engine_gain
+from dtid.identification.search.runs import engine_gain
 from dtid.simulator.linear import three_mass_modes
 from dtid.simulator.mechanisms import Effects, kernel_parameters
 from dtid.simulator.parameters import DrivetrainParameters

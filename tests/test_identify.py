@@ -14,18 +14,13 @@ from dtid.identification.gain_choice import held_gain
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs, run_identification
 from dtid.identification.samples.testdata import TestData, from_simulation
-from dtid.identification.search.identify import (
-    SearchSettings,
-    amplitude_levels,
-    engine_gain,
-    identify,
-    split_runs,
-)
+from dtid.identification.search.identify import SearchSettings, identify
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
 )
+from dtid.identification.search.runs import amplitude_levels, engine_gain, split_runs
 from dtid.identification.search.start_values import start_thetas, total_inertia
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate

@@ -49,8 +49,8 @@ from dtid.identification.pipeline import (
     identification_runs,
     run_identification,
 )
-from dtid.identification.search.identify import Objective, SearchSettings, refine
-from dtid.identification.search.objective import nrmse
+from dtid.identification.search.identify import SearchSettings, refine
+from dtid.identification.search.objective import Objective, nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.simulator.parameters import NAMES, DrivetrainParameters, reference_parameters
 from dtid.simulator.vehicle_data import load_vehicle_data

@@ -43,7 +43,7 @@ from dtid.identification.planning.information import (
 )
 from dtid.identification.planning.spread import DRIVETRAIN, MAX_SPREAD, spread_priors
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import Objective
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,

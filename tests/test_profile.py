@@ -9,18 +9,14 @@ from scipy import stats
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import (
-    Objective,
-    SearchSettings,
-    engine_gain,
-    identify,
-    split_runs,
-)
+from dtid.identification.search.identify import SearchSettings, identify
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
 )
+from dtid.identification.search.runs import engine_gain, split_runs
 from dtid.identification.setups import two_mass
 from dtid.identification.uncertainty.profile import (
     BIN_CORRELATION,

@@ -22,8 +22,9 @@ from dtid.identification.pipeline import (
     validation_runs,
 )
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import SearchSettings, engine_gain
+from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.objective import nrmse
+from dtid.identification.search.runs import engine_gain
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 

@@ -14,19 +14,18 @@ from scipy import optimize
 from dtid.acquisition.plan import TestPlan
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import TestData, from_simulation
-from dtid.identification.search.identify import (
+from dtid.identification.search.levenberg_marquardt import (
     CONFIRM_SEEDS,
-    Objective,
     confirmed,
-    engine_gain,
     levenberg_marquardt,
-    split_runs,
 )
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
     theta_from_parameters,
 )
+from dtid.identification.search.runs import engine_gain, split_runs
 from dtid.identification.search.sensitivity import (
     SENSITIVITY_DB,
     STEP_RANGE,

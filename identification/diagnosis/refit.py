@@ -78,9 +78,9 @@ from dtid.identification.diagnosis.candidates import Absorbed, Candidate, Screen
 from dtid.identification.diagnosis.mismatch import MismatchMap, sidak
 from dtid.identification.model.response import DEFAULT_REALIZATIONS, model_curves, model_drv_db
 from dtid.identification.pipeline import RunSelection
-from dtid.identification.search.identify import Objective, SearchSettings, refine
+from dtid.identification.search.identify import SearchSettings, refine
 from dtid.identification.search.identify import search as identification_search
-from dtid.identification.search.objective import nrmse
+from dtid.identification.search.objective import Objective, nrmse
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,
@@ -679,7 +679,7 @@ class Extra:
     """The base's free values followed by some mechanisms' parameters: what a refit searches.
 
     Duck-types :class:`dtid.identification.search.parameterization.Parameterization` for
-    :class:`dtid.identification.search.identify.Objective` (its ``parameters`` and ``free``).
+    :class:`dtid.identification.search.objective.Objective` (its ``parameters`` and ``free``).
 
     Attributes
     ----------

@@ -83,7 +83,7 @@ class MeasuredTest:
         reference engine and a tooth-timer speed sensor by default).
 
         A run that cannot give an FRF is kept in ``unusable`` with the reason:
-        :func:`dtid.identification.search.identify.split_runs` leaves it out of the validation, or
+        :func:`dtid.identification.search.runs.split_runs` leaves it out of the validation, or
         refuses if it was to identify. No run with an FRF at all is an error.
         """
         runs = find_runs(data.test_torque)

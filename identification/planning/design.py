@@ -57,12 +57,12 @@ from dtid.identification.planning.spread import (
     half_widths,
     spread_priors,
 )
-from dtid.identification.search.identify import AMPLITUDE_MATCH, amplitude_levels, split_runs
 from dtid.identification.search.parameterization import (
     PASSENGER_CAR_RANGES,
     THETA_NAMES,
     theta_from_parameters,
 )
+from dtid.identification.search.runs import AMPLITUDE_MATCH, amplitude_levels, split_runs
 from dtid.simulator.angle_grid import N_CYL
 from dtid.simulator.parameters import UNITS, DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions
@@ -618,7 +618,7 @@ def _ratios(
 def run_designs(tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]) -> list[Design]:
     """The given runs of measured tests (indices into each test's estimates), each as a design
     of its own, its amplitude the level it belongs to
-    (:func:`dtid.identification.search.identify.amplitude_levels`)."""
+    (:func:`dtid.identification.search.runs.amplitude_levels`)."""
     levels = amplitude_levels(
         t.estimates[i].run.amplitude_nm
         for t, indices in zip(tests, runs, strict=True)
@@ -636,7 +636,7 @@ def run_designs(tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]) ->
 
 def recorded_designs(tests: Sequence[MeasuredTest]) -> tuple[list[Design], list[float]]:
     """The identifying runs of measured tests (the default choice:
-    :func:`dtid.identification.search.identify.split_runs`), each as a design of its own, and
+    :func:`dtid.identification.search.runs.split_runs`), each as a design of its own, and
     the amplitudes of the runs that validate, N*m."""
     identifying, validating = split_runs(tests)
     held_out = amplitude_levels(

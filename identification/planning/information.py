@@ -33,7 +33,7 @@ from dtid.errors import AnalysisError
 from dtid.identification.frf.runs import ChirpRun
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import from_simulation
-from dtid.identification.search.identify import Objective
+from dtid.identification.search.objective import Objective
 from dtid.identification.search.parameterization import (
     THETA_NAMES,
     Parameterization,

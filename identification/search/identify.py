@@ -37,10 +37,10 @@ box in four stages, each on a more exact and dearer objective (the model's reali
    above the model's Monte Carlo jitter (:mod:`dtid.identification.search.sensitivity`):
    Nelder-Mead crawls along the shallow, coupled directions of the dampings and the friction, where
    the jitter of the objective is as large as its slope, and stops short of the minimum. A step
-   is kept only if it fits better on fresh draws of the model (:func:`confirmed`), so that it
-   does not wander along a direction the data cannot see, and whatever it does on the
-   objective's own draws, where the polish's end is a lucky minimum of their noise
-   (:func:`levenberg_marquardt`). The steps go on until one
+   is kept only if it fits better on fresh draws of the model, so that it does not wander along
+   a direction the data cannot see, and whatever it does on the objective's own draws, where
+   the polish's end is a lucky minimum of their noise
+   (:mod:`dtid.identification.search.levenberg_marquardt`). The steps go on until one
    no longer improves (at most ``newton_iterations``): the DMF's stiffness, free play and mass
    ratio trade along a narrow curved valley (one of them moved alone raises eq. 17 six-fold)
    where Nelder-Mead stalls and each step gains a little; capped at 4 steps, the search ended
@@ -67,18 +67,21 @@ import dataclasses
 import itertools
 import logging
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import optimize, stats
 
-from dtid.errors import AnalysisError, DtidError
-from dtid.identification.model.response import ModelTest, model_drv_db
+from dtid.errors import DtidError
+from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
-from dtid.identification.search.objective import nrmse, summed_nrmse
+from dtid.identification.search.levenberg_marquardt import (
+    levenberg_marquardt,
+    lowest_on_fresh_draws,
+)
+from dtid.identification.search.objective import Objective, nrmse
 from dtid.identification.search.parameterization import THETA_NAMES, Parameterization
-from dtid.identification.search.sensitivity import jacobian, sized_steps
 from dtid.simulator.parameters import DrivetrainParameters
 
 logger = logging.getLogger(__name__)
@@ -167,64 +170,6 @@ class SearchSettings:
         return dataclasses.replace(self, polish_starts=1, scan_starts=0, final_starts=1)
 
 
-@dataclass
-class Objective:
-    """Eq. (17) over the identification runs, with a count of simulator calls."""
-
-    parameterization: Parameterization
-    tests: Sequence[ModelTest]
-    measured_db: Sequence[Sequence[np.ndarray]]
-    calls: int = 0
-    parameter_sets: int = 0
-    seconds: float = 0.0
-
-    def __call__(self, unit: np.ndarray) -> np.ndarray:
-        """Objective of each row of normalised free values (n, n_free)."""
-        start = time.perf_counter()
-        params = self.parameterization.parameters(np.atleast_2d(unit))
-        total = np.zeros(params.shape[0])
-        for test, measured in zip(self.tests, self.measured_db, strict=True):
-            total += summed_nrmse(measured, model_drv_db(params, test))
-            self.calls += 1
-        self.parameter_sets += params.shape[0]
-        self.seconds += time.perf_counter() - start
-        return total
-
-    def residuals(self, unit: np.ndarray) -> np.ndarray:
-        """Weighted residuals behind eq. (17) of each row of normalised free values.
-
-        Returns
-        -------
-        numpy.ndarray
-            (n, bins): model minus measured |G_DRV|, dB, each run's bins divided by the run's
-            measured spread (the NRMSE's denominator), runs in order; NaN where the model could
-            not idle. Each run's NRMSE is the norm of its part.
-        """
-        start = time.perf_counter()
-        params = self.parameterization.parameters(np.atleast_2d(unit))
-        columns = []
-        for test, measured in zip(self.tests, self.measured_db, strict=True):
-            for model, data in zip(model_drv_db(params, test), measured, strict=True):
-                columns.append((model - data) / np.linalg.norm(data - data.mean()))
-            self.calls += 1
-        self.parameter_sets += params.shape[0]
-        self.seconds += time.perf_counter() - start
-        return np.hstack(columns)
-
-    def count(self, other: Objective) -> None:
-        """Add another objective's counters to this one's (evaluations made on its behalf)."""
-        self.calls += other.calls
-        self.parameter_sets += other.parameter_sets
-        self.seconds += other.seconds
-
-    def replacing(self, **changes: object) -> Objective:
-        """The same objective with its tests changed, for example ``realizations`` (fewer are
-        cheaper) or ``seed`` (:class:`dtid.identification.model.response.ModelTest`); the counters
-        start at zero."""
-        tests = [dataclasses.replace(t, **changes) for t in self.tests]
-        return Objective(self.parameterization, tests, self.measured_db)
-
-
 @dataclass(frozen=True)
 class Identification:
     """Result of an identification.
@@ -265,95 +210,6 @@ class Identification:
     combustion_variation: dict[str, float] = field(default_factory=dict)
 
 
-def engine_gain(tests: Sequence[MeasuredTest]) -> float:
-    """Eq. (24): K as the mean of |G_ENG| over every run that has it.
-
-    Each recording's K read stroke by stroke is reported beside it
-    (:func:`dtid.identification.model.idle_loop.stroke_gain`, the identification JSON's
-    ``idle_loop.engine_gain``): closer to the truth, but the search holds it only where eq.
-    (24)'s is far from it (:func:`dtid.identification.gain_choice.held_gain` says why)."""
-    gains = [e.engine_gain for t in tests for e in t.estimates if np.isfinite(e.engine_gain)]
-    if not gains:
-        raise AnalysisError(
-            "no recording carries a torque request T_ecu the identification can use (none is "
-            "mapped, or it was left out: the warnings above say why), so K (eq. 24) cannot be "
-            "measured; map the ECU's total torque request or fix K with --fix K=VALUE"
-        )
-    return float(np.mean(gains))
-
-
-AMPLITUDE_MATCH = 0.05
-"""Runs whose amplitudes differ by at most this fraction are at one amplitude (the peak of a
-sampled, quantised request varies a little from recording to recording)."""
-
-
-def amplitude_levels(amplitudes: Iterable[float]) -> list[float]:
-    """The distinct amplitudes among runs, ascending, N*m: runs within :data:`AMPLITUDE_MATCH`
-    of a level's smallest are one level, given as their mean."""
-    levels: list[list[float]] = []
-    for amplitude in sorted(amplitudes):
-        if levels and amplitude <= (1 + AMPLITUDE_MATCH) * levels[-1][0]:
-            levels[-1].append(amplitude)
-        else:
-            levels.append([amplitude])
-    return [float(np.mean(level)) for level in levels]
-
-
-def _at_level(amplitude: float, chosen: Sequence[float]) -> bool:
-    """Whether a run's amplitude, N*m, is within :data:`AMPLITUDE_MATCH` of a chosen level."""
-    return any(abs(amplitude - a) <= AMPLITUDE_MATCH * a for a in chosen)
-
-
-def runs_at(test: MeasuredTest, levels: Sequence[float]) -> list[int]:
-    """Indices of a recording's runs at any of the given amplitude levels, N*m."""
-    return [i for i, e in enumerate(test.estimates) if _at_level(e.run.amplitude_nm, levels)]
-
-
-def split_runs(
-    tests: Sequence[MeasuredTest], identify_amplitudes: Sequence[float] | None = None
-) -> tuple[list[list[int]], list[list[int]]]:
-    """Indices of the identification and validation runs of each recording.
-
-    By default the two largest amplitudes identify and the others validate (the paper: 5 and
-    10 N*m identify, 2 N*m validates); amplitudes are levels (:func:`amplitude_levels`), so two
-    recordings whose 10 N*m peaks read 9.998 and 10.000 N*m still identify from 5 and 10. A run
-    without an FRF (:attr:`dtid.identification.model.test_setup.MeasuredTest.unusable`) counts in
-    the choice of the amplitudes: at an identifying amplitude it is an error, else it is left out
-    with a warning.
-
-    Raises
-    ------
-    AnalysisError
-        If no run identifies, or a run that should cannot give an FRF.
-    """
-    runs = [e.run for t in tests for e in t.estimates] + [r for t in tests for r, _ in t.unusable]
-    levels = amplitude_levels(run.amplitude_nm for run in runs)
-    chosen = list(identify_amplitudes) if identify_amplitudes else levels[-2:]
-    ident, valid = [], []
-    for test in tests:
-        for run, reason in test.unusable:
-            if _at_level(run.amplitude_nm, chosen):
-                raise AnalysisError(
-                    f"{test.name}: the {run.amplitude_nm:g} N*m run identifies but cannot give "
-                    f"an FRF: {reason}"
-                )
-            logger.warning(
-                "%s: the %g N*m run at %.1f s is left out of the validation: %s",
-                test.name,
-                run.amplitude_nm,
-                run.start_s,
-                reason,
-            )
-        picks = runs_at(test, chosen)
-        ident.append(picks)
-        valid.append([i for i in range(len(test.estimates)) if i not in picks])
-    if not any(ident):
-        raise AnalysisError(
-            f"no chirp run has an amplitude among {', '.join(f'{a:g}' for a in chosen)} N*m"
-        )
-    return ident, valid
-
-
 def identify(
     tests: Sequence[MeasuredTest],
     parameterization: Parameterization,
@@ -373,7 +229,7 @@ def identify(
     parameterization
         Bounds, fixed values, T_loss and K.
     identify_runs, validate_runs
-        Run indices per recording (see :func:`split_runs`).
+        Run indices per recording (see :func:`dtid.identification.search.runs.split_runs`).
     settings
         Search budget and seed.
     progress
@@ -531,7 +387,7 @@ def _final_ends(
             for start in starts
         ]
     )
-    return ends[_lowest_on_fresh_draws(stages["newton"], ends)]
+    return ends[lowest_on_fresh_draws(stages["newton"], ends)]
 
 
 def _identification(
@@ -755,137 +611,6 @@ def _polish(
         },
     )
     return result.x, float(result.fun)
-
-
-LM_DAMPINGS = (1e-4, 1e-3, 0.01, 0.1, 1.0)
-"""Levenberg-Marquardt dampings tried at each step, relative to the diagonal of J^T J. The two
-smallest are nearly Gauss-Newton: at vehicle_1's stage-3 ends of the independent recordings the
-step at 1e-3 gained 0.0019 on fresh draws where 0.01's gained 0.0015 and 1.0's nothing."""
-CONFIRM_SEEDS = tuple(range(101, 109))
-"""Seeds of the fresh model draws a Levenberg-Marquardt step must fit better on (apart from the
-profiles' replicas, seeds 1-8, and from :data:`CHOICE_SEEDS`)."""
-CONFIRM_QUANTILE = float(stats.t.ppf(0.95, len(CONFIRM_SEEDS) - 1))
-"""Standard errors by which the mean improvement on the fresh draws must exceed zero (1.89)."""
-CHOICE_SEEDS = tuple(range(201, 209))
-"""Seeds of the fresh model draws the ends of stages 3 and 4 are compared on
-(:func:`_lowest_on_fresh_draws`)."""
-
-
-def levenberg_marquardt(
-    objective: Objective,
-    start: np.ndarray,
-    value: float,
-    iterations: int,
-    held: int | None = None,
-) -> tuple[np.ndarray, float]:
-    """Levenberg-Marquardt steps on eq. (17)'s weighted residuals: the search's stage 4, the end
-    of each of stage 2's polishes and of each profile point's re-optimisation.
-
-    Each step takes the Jacobian with sized differences
-    (:func:`dtid.identification.search.sensitivity.jacobian`; after the first, with the steps
-    sized at the previous point: one round of differences instead of two), solves for the
-    steps of all :data:`LM_DAMPINGS` and evaluates them in one batch; the best of them on
-    ``objective``'s own draws is kept if it fits better than the current point on fresh draws
-    (:func:`confirmed`), else the search ends. Nelder-Mead crawls along the shallow, coupled
-    directions of the dampings and the friction; this step crosses them.
-
-    Whether a step fits better is decided on the fresh draws alone, not also on the objective's
-    own: where the steps start, at the end of a Nelder-Mead polish, that value is the least of
-    some hundred evaluations of a rough function (sets close together differ like partly
-    independent draws), so it lies below the objective's mean there by the luck of the draws,
-    and a step rarely beats it however much better it fits. On vehicle_1's stage-3 ends (the
-    independent recordings, eq. 17 0.0484 and 0.0480) no step beat them on their own draws and
-    both searches stopped at once, where the steps gained 0.0015-0.0021 on eight fresh draws
-    (SE 0.0003); judged on fresh draws, the searches went on to 0.0469 and 0.0474 on draws
-    neither had seen (from 0.0494 and 0.0496).
-
-    Parameters
-    ----------
-    objective
-        Eq. (17); its counters take the evaluations.
-    start, value
-        Where to start (normalised free values) and eq. (17) there.
-    iterations
-        Most steps.
-    held
-        Index of a free parameter that stays where it is (a profile's re-optimisation,
-        :mod:`dtid.identification.uncertainty.profile`); None: all move.
-
-    Returns
-    -------
-    tuple
-        The normalised free values reached and eq. (17) there on ``objective``'s own draws (which
-        may exceed ``value``: see above).
-    """
-    best = start
-    moving = [i for i in range(len(start)) if i != held]
-    steps = None
-    for _ in range(iterations):
-        jac, residual = jacobian(objective, best, moving, steps)
-        if not (np.isfinite(jac).all() and np.isfinite(residual).all()):
-            break
-        steps = sized_steps(objective, jac)  # the next Jacobian's, measured here
-        normal = jac.T @ jac
-        gradient = jac.T @ residual
-        scale = np.diag(np.diag(normal)) + 1e-12 * np.eye(len(moving))
-        candidates = np.repeat(best[None], len(LM_DAMPINGS), axis=0)
-        for row, damping in enumerate(LM_DAMPINGS):
-            step = np.linalg.solve(normal + damping * scale, gradient)
-            candidates[row, moving] = np.clip(best[moving] - step, 0.0, 1.0)
-        values = objective(candidates)
-        if not np.isfinite(values).any():
-            break
-        choice = candidates[int(np.nanargmin(values))]
-        if not confirmed(objective, best, choice):
-            break
-        best, value = choice, float(np.nanmin(values))
-    return best, value
-
-
-def confirmed(objective: Objective, before: np.ndarray, after: np.ndarray) -> bool:
-    """Whether ``after`` fits better than ``before`` on fresh draws of the model, beyond their
-    Monte Carlo noise.
-
-    The model's objective is a Monte Carlo estimate, and with free play and friction sets very
-    close together differ like partly independent draws (see
-    :mod:`dtid.identification.uncertainty.profile`). Where the data cannot see a parameter, any step
-    along it that the search's own draws prefer is luck: on a 30 s hardware-in-the-loop log, a step
-    that lowered eq. (17) by 0.1 % moved the DMF friction from +2 % to +33 % and fitted no better on
-    eight other draws. So the improvement must hold on the draws of :data:`CONFIRM_SEEDS`,
-    paired (both sets on the same draws): their mean must exceed :data:`CONFIRM_QUANTILE` standard
-    errors. A deterministic model (no combustion variation) gives equal draws, and there any
-    improvement holds.
-
-    Parameters
-    ----------
-    objective
-        Eq. (17); its counters take the evaluations.
-    before, after
-        Normalised free values (n_free,).
-    """
-    gains = _on_fresh_draws(objective, np.array([before, after]), CONFIRM_SEEDS)
-    gains = gains[:, 0] - gains[:, 1]
-    if not np.isfinite(gains).all():
-        return False
-    mean = float(np.mean(gains))
-    return mean > CONFIRM_QUANTILE * float(np.std(gains, ddof=1)) / np.sqrt(len(gains))
-
-
-def _on_fresh_draws(objective: Objective, units: np.ndarray, seeds: Sequence[int]) -> np.ndarray:
-    """Eq. (17) of each row of ``units`` on the model's draws of each seed: (seeds, rows)."""
-    values = []
-    for seed in seeds:
-        fresh = objective.replacing(seed=seed)
-        values.append(fresh(units))
-        objective.count(fresh)
-    return np.array(values)
-
-
-def _lowest_on_fresh_draws(objective: Objective, units: np.ndarray) -> int:
-    """Index of the row of ``units`` with the lowest mean eq. (17) on the draws of
-    :data:`CHOICE_SEEDS`: the ends of stages 3 and 4 are each the work of an optimisation on
-    its own draws and compared there would be compared on that luck."""
-    return int(np.argmin(np.mean(_on_fresh_draws(objective, units, CHOICE_SEEDS), axis=0)))
 
 
 def _nrmse_by_run(

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:  # the search (dtid.identification.search.identify) uses this module
-    from dtid.identification.search.identify import Objective
+    from dtid.identification.search.objective import Objective
 
 SENSITIVITY_DB = 0.1
 """RMS change of the model's |G_DRV| (dB) each parameter's finite difference is sized for: seven
@@ -60,7 +60,7 @@ def jacobian(
     -------
     tuple of numpy.ndarray
         The Jacobian (bins, len(columns)), per normalised unit, and the residuals at ``unit``
-        (bins,), as :meth:`dtid.identification.search.identify.Objective.residuals`; NaN where
+        (bins,), as :meth:`dtid.identification.search.objective.Objective.residuals`; NaN where
         the model could not idle at some step.
     """
     cols = np.arange(len(unit)) if columns is None else np.asarray(columns, dtype=int)

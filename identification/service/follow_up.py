@@ -25,7 +25,7 @@ from dtid.identification.frf.runs import ChirpRun
 from dtid.identification.pipeline import IdentificationReport
 from dtid.identification.planning.agreement import agreement, plan_scatter
 from dtid.identification.planning.spread import RECORDED
-from dtid.identification.search.identify import amplitude_levels
+from dtid.identification.search.runs import amplitude_levels
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions

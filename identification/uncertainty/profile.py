@@ -88,8 +88,8 @@ import numpy as np
 from scipy import optimize, stats
 
 from dtid.identification.model.response import model_drv_db
-from dtid.identification.search.identify import Objective, levenberg_marquardt
-from dtid.identification.search.objective import nrmse
+from dtid.identification.search.levenberg_marquardt import levenberg_marquardt
+from dtid.identification.search.objective import Objective, nrmse
 from dtid.identification.search.parameterization import Parameterization
 from dtid.identification.search.sensitivity import compensation
 from dtid.jsonfile import finite, json_number
@@ -558,7 +558,8 @@ def profile_at(
         of each re-optimisation; the polish and the profile's values use ``objective``.
     steps
         Most Levenberg-Marquardt steps after each re-optimisation's Nelder-Mead polish, the held
-        parameter fixed (:func:`dtid.identification.search.identify.levenberg_marquardt`).
+        parameter fixed
+        (:func:`dtid.identification.search.levenberg_marquardt.levenberg_marquardt`).
     expand
         On a side of the optimum where no value is rejected, at most this many more points,
         each twice as far from the optimum as the outermost so far (up to the bound), until

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dtid.identification.search.identify import Objective
+from dtid.identification.search.objective import Objective
 from dtid.identification.uncertainty.profile import THRESHOLD, Profile, profile_at
 from dtid.jsonfile import finite
 
