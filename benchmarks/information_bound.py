@@ -12,7 +12,7 @@ for 1.9 % predicted, d12 11 % for 12 %, the gear play 2.8 % for 4.9 %; the frict
 is far from quadratic, comes out within 8 % on six and off by half or more on two). It also gives
 the scatter of the unweighted least-squares fit that the profile likelihood assumes, against the
 standard deviation its statistic implies
-(:func:`dtid.identification.uncertainty.profile.noise_scale`), which says whether the profile
+(:func:`dtid.identification.uncertainty.statistic.noise_scale`), which says whether the profile
 intervals are calibrated. Not a test: nothing is asserted.
 
     PYTHONPATH=. python benchmarks/information_bound.py --truth 1 --seeds 12
@@ -50,7 +50,7 @@ from dtid.identification.search.parameterization import (
     theta_from_parameters,
 )
 from dtid.identification.search.sensitivity import jacobian
-from dtid.identification.uncertainty.profile import correlation_length, local_variance
+from dtid.identification.uncertainty.statistic import correlation_length, local_variance
 from dtid.simulator.parameters import reference_parameters
 from dtid.simulator.simulate import SimulationOptions, simulate
 from dtid.simulator.vehicle_data import load_vehicle_data

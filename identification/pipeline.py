@@ -50,7 +50,8 @@ from dtid.identification.search.parameterization import (
 )
 from dtid.identification.search.runs import amplitude_levels, runs_at, split_runs
 from dtid.identification.search.start_values import start_thetas
-from dtid.identification.uncertainty.profile import THRESHOLD, Profile, profile, with_structure
+from dtid.identification.uncertainty.profile import Profile, profile, with_structure
+from dtid.identification.uncertainty.statistic import THRESHOLD
 from dtid.identification.uncertainty.target_test import TargetTest, target_test
 from dtid.jsonfile import finite, write_json
 from dtid.simulator.parameters import UNITS, DrivetrainParameters

@@ -19,18 +19,20 @@ from dtid.identification.search.parameterization import (
 from dtid.identification.search.runs import engine_gain, split_runs
 from dtid.identification.setups import two_mass
 from dtid.identification.uncertainty.profile import (
-    BIN_CORRELATION,
-    LOCAL_BINS,
     NOISY_FLAT_RISE,
-    THRESHOLD,
     Profile,
-    independent_bins,
     interval_and_verdict,
     judged_flat,
-    nested_p_value,
     profile,
-    small_sample_factor,
     smoothed,
+)
+from dtid.identification.uncertainty.statistic import (
+    BIN_CORRELATION,
+    LOCAL_BINS,
+    THRESHOLD,
+    independent_bins,
+    nested_p_value,
+    small_sample_factor,
     statistic,
 )
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters

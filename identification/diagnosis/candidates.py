@@ -124,8 +124,9 @@ class Candidate:
         ``{"fit": {run: value}, "validation": {run: value}}``.
     statistic, p_value
         The likelihood-ratio statistic against the model it extends and its p-value (the F
-        reference of nested models, :func:`dtid.identification.uncertainty.profile.nested_p_value`),
-        family-wise over the candidates tested against that model (Sidak).
+        reference of nested models,
+        :func:`dtid.identification.uncertainty.statistic.nested_p_value`), family-wise over
+        the candidates tested against that model (Sidak).
     criterion
         2 k - statistic (AIC in the statistic's units; below zero it pays for its parameters).
     validation_gain

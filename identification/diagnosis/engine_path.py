@@ -21,7 +21,7 @@ can therefore neither find nor test it. Here, on the recordings that carry the E
    engine-path mechanisms have one parameter; a further one would be held at the middle of its
    typical range (:func:`dtid.identification.diagnosis.refit.with_mechanism`).
 3. **Test.** The intervals' likelihood-ratio statistic
-   (:func:`dtid.identification.uncertainty.profile.statistic`) on |G_ENG| with each model's
+   (:func:`dtid.identification.uncertainty.statistic.statistic`) on |G_ENG| with each model's
    level removed, against the model without the mechanism, on fresh realizations
    (:data:`dtid.identification.diagnosis.refit.TEST_SEED`); F reference of nested models with
    the level counted as fitted; Sidak over the engine-path mechanisms tried. Accepted when
@@ -60,12 +60,8 @@ from dtid.identification.diagnosis.refit import (
     with_mechanism,
 )
 from dtid.identification.pipeline import RunSelection
-from dtid.identification.uncertainty.profile import (
-    independent_bins,
-    interval_and_verdict,
-    nested_p_value,
-    statistic,
-)
+from dtid.identification.uncertainty.profile import interval_and_verdict
+from dtid.identification.uncertainty.statistic import independent_bins, nested_p_value, statistic
 from dtid.simulator.mechanisms import BY_NAME, EXTRA_INDEX, Mechanism
 from dtid.simulator.parameters import NAMES
 

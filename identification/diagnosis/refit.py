@@ -47,11 +47,11 @@ recordings carry the ECU's request: :mod:`dtid.identification.diagnosis.engine_p
    (:meth:`Refit.reidentify`, the identification's own search): a strong mechanism can leave
    the identification in a basin no refit from there escapes.
 3. **Test**. The improvement is the intervals' own likelihood-ratio statistic
-   (:func:`dtid.identification.uncertainty.profile.statistic`: the sandwich form, whose noise
+   (:func:`dtid.identification.uncertainty.statistic.statistic`: the sandwich form, whose noise
    scale takes the residual's correlation length, i.e. the effective sample size), evaluated on
    :data:`TEST_REALIZATIONS` realizations of the model, on fresh draws of the model (not those
    the refits chose their optima on). Its reference is the F test of nested models
-   (:func:`dtid.identification.uncertainty.profile.nested_p_value`: the residuals' variance is
+   (:func:`dtid.identification.uncertainty.statistic.nested_p_value`: the residuals' variance is
    estimated after a fit of the ten parameters and the mechanisms', on the residuals'
    independent bins), F(k, nu) with k the mechanism's parameters, which for many bins is
    chi-square(k) / k; the p-value is family-wise over the candidates tested against the same
@@ -88,12 +88,8 @@ from dtid.identification.search.parameterization import (
     theta_from_parameters,
 )
 from dtid.identification.search.start_values import start_thetas
-from dtid.identification.uncertainty.profile import (
-    independent_bins,
-    nested_p_value,
-    profile,
-    statistic,
-)
+from dtid.identification.uncertainty.profile import profile
+from dtid.identification.uncertainty.statistic import independent_bins, nested_p_value, statistic
 from dtid.simulator.mechanisms import (
     BY_NAME,
     EXTRA_INDEX,

@@ -40,7 +40,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.identification.search.objective import Objective
-from dtid.identification.uncertainty.profile import THRESHOLD, Profile, profile_at
+from dtid.identification.uncertainty.profile import Profile, profile_at
+from dtid.identification.uncertainty.statistic import THRESHOLD
 from dtid.jsonfile import finite
 
 EXPAND = 3
