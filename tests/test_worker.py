@@ -55,6 +55,9 @@ BUDGET_ARGS = ["--seed", "3", "--generations", "2", "--popsize", "2", "--polish-
 """The search is not these tests' subject: the smallest budget, alike in the worker and the
 commands it is compared with."""
 PLAN = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=2.0, duration_s=20.0)
+SCREENED = ("gearbox_drag", "torque_lag")
+"""The mechanisms the replayed worker's diagnosis considers: the screen sets them aside at once
+on this clean plant (the whole library's diagnosis is tests/test_diagnosis.py's subject)."""
 
 
 @dataclass
@@ -553,6 +556,7 @@ def replayed(session: SimulatedSession) -> Iterator[Replayed]:
                 settings=BUDGET,
                 profile_points=0,
                 diagnose=True,
+                mechanisms=SCREENED,
                 plan_follow_up=True,
                 plan_vehicles=1,
             )
@@ -610,7 +614,7 @@ def test_the_replayed_workers_diagnosis_is_dtid_diagnoses(
     identification = folder / "identification.json"
     out = folder / "offline-diagnosis.json"
     command = ["diagnose", str(session.log_path), "--identification", str(identification)]
-    assert main([*command, "--json", str(out)]) == 0
+    assert main([*command, "--mechanisms", *SCREENED, "--json", str(out)]) == 0
     offline_diagnosis = json.loads(out.read_text())
     for key in ("adequate", "mismatch", "test", "hints"):
         assert written[key] == offline_diagnosis[key], key

@@ -70,18 +70,24 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_vehicle_option(parser)
     add_search_options(parser)
     parser.set_defaults(profile_points=0)
+    add_mechanisms_option(parser)
+    parser.add_argument("--json", type=output_file, help="write the diagnosis as JSON")
+    parser.add_argument("--plot", type=plot_file, help="plot the mismatch map and the FRFs")
+    add_interface_options(parser)
+    parser.set_defaults(run=run)
+
+
+def add_mechanisms_option(parser: argparse.ArgumentParser, what: str = "") -> None:
+    """Add ``--mechanisms`` (``dtid diagnose`` and ``dtid worker``): the library's mechanisms a
+    diagnosis considers; None (not given) is all of them, the option alone none (locate only)."""
     parser.add_argument(
         "--mechanisms",
         nargs="*",
         choices=list(BY_NAME),
         metavar="NAME",
-        help=f"mechanisms to consider (default: all of {', '.join(BY_NAME)}; the option alone: "
-        "locate only)",
+        help=f"mechanisms to consider{what} (default: all of {', '.join(BY_NAME)}; the option "
+        "alone: locate only)",
     )
-    parser.add_argument("--json", type=output_file, help="write the diagnosis as JSON")
-    parser.add_argument("--plot", type=plot_file, help="plot the mismatch map and the FRFs")
-    add_interface_options(parser)
-    parser.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -19,6 +19,7 @@ from typing import Any
 from dtid.acquisition.config import load_config
 from dtid.cli import EXIT_INTERRUPTED
 from dtid.cli.commands.common import add_vehicle_option, output_file, plot_file, vehicle_data
+from dtid.cli.commands.diagnose import add_mechanisms_option
 from dtid.cli.commands.identify import add_search_options, print_report, search_settings
 from dtid.errors import ConfigError
 from dtid.identification.planning.spread import DEFAULT_VEHICLES
@@ -54,6 +55,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="Fig. 6 plot, with --once (default: identification.png beside the log)",
     )
     parser.add_argument("--no-plot", action="store_true", help="do not plot")
+    add_mechanisms_option(parser, " in the diagnosis ([worker] diagnose = true)")
     parser.add_argument(
         "--plan-vehicles",
         type=int,
@@ -111,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         plot_path=args.plot,
         plot=not args.no_plot,
         diagnose=config.worker.diagnose,
+        mechanisms=None if args.mechanisms is None else tuple(args.mechanisms),
         plan_follow_up=config.worker.plan_follow_up,
         plan_vehicles=args.plan_vehicles,
         safety=config.safety,

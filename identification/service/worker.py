@@ -163,6 +163,9 @@ class WorkerOptions:
         Welch resolution of the FRFs.
     diagnose
         After the validation, diagnose the identified model (``[worker] diagnose``).
+    mechanisms
+        The library's mechanisms the diagnosis considers (``dtid worker --mechanisms``, as
+        ``dtid diagnose --mechanisms``); None: all of them, empty: locate only.
     plan_follow_up
         After the result, plan the follow-up test (``[worker] plan_follow_up``).
     plan_vehicles
@@ -183,6 +186,7 @@ class WorkerOptions:
     plot: bool = True
     resolution_hz: float = DEFAULT_RESOLUTION_HZ
     diagnose: bool = False
+    mechanisms: tuple[str, ...] | None = None
     plan_follow_up: bool = False
     plan_vehicles: int = DEFAULT_VEHICLES
     safety: SafetyConfig = field(default_factory=SafetyConfig)
@@ -682,7 +686,7 @@ class Worker:
         from dtid.identification.diagnosis.diagnose import diagnose_report
 
         try:
-            diagnosis = diagnose_report(report)
+            diagnosis = diagnose_report(report, mechanisms=self.options.mechanisms)
         except DtidError as error:
             self._progress(session, "error", message=f"the diagnosis: {error}")
             return []
