@@ -66,7 +66,8 @@ class FollowUp:
 
 
 def campaign_targets(campaign: Mapping[str, Any] | None) -> dict[str, float]:
-    """A campaign's targets, parsed as ``dtid plan --target`` parses them ({} outside one).
+    """A campaign's targets over ``dtid plan``'s defaults, parsed as ``dtid plan --target``
+    parses them (``NAME = 0`` drops one); outside a campaign the defaults.
 
     Raises
     ------
