@@ -737,6 +737,73 @@ def test_a_new_session_resets_the_worker(
     assert _without_wall_time(results[0]) == _without_wall_time(offline["identify"])
 
 
+def test_a_session_that_begins_while_the_last_is_diagnosed_is_served_at_once(
+    session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The diagnosis after a result runs beside the loop: while it is held, a new session's
+    start is taken and announced, and the held session then ends with its diagnosis and report.
+    (Until 2026-12-07 the loop computed the diagnosis and the follow-up plan itself and took no
+    event for their minute.)"""
+    from dtid.identification.diagnosis import diagnose as diagnose_module
+
+    diagnosing, release = threading.Event(), threading.Event()
+    real = diagnose_module.diagnose_report
+
+    def held(report: Any, **kwargs: Any) -> Any:
+        diagnosing.set()
+        release.wait(60)  # bound: without it the test would wait forever on a blocked loop
+        return real(report, **kwargs)
+
+    monkeypatch.setattr(diagnose_module, "diagnose_report", held)
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=200.0)
+    options = WorkerOptions(
+        settings=BUDGET,
+        profile_points=0,
+        json_path=ipc_dir / "r.json",
+        plot=False,
+        diagnose=True,
+        mechanisms=SCREENED,
+    )
+    worker = Worker(pipeline, options)
+    messages: list[tuple[str, dict[str, Any]]] = []
+    stop = threading.Event()
+
+    def listen(topic: str, document: dict[str, Any]) -> None:
+        messages.append((topic, document))
+        if document.get("session") == "s2" and document.get("stage") == "acquiring":
+            release.set()
+        if document.get("session") == "s1" and document.get("stage") == "done":
+            stop.set()
+
+    worker.listeners.append(listen)
+    thread = threading.Thread(target=worker.serve, kwargs={"stop": stop})
+    thread.start()
+    daemon.go.set()
+    try:
+        assert diagnosing.wait(120), "the worker never diagnosed"
+        assert daemon.done.wait(30)  # the daemon's thread no longer sends: the PUB is free
+        for event in session.events[:40]:
+            daemon.pub.send_multipart(encode_event({**event, "session": "s2"}))
+        thread.join(120)
+        assert not thread.is_alive()
+    finally:
+        stop.set()
+        release.set()
+        thread.join(10)
+        daemon.close()
+    order = [(t, d.get("session"), d.get("stage")) for t, d in messages]
+    assert ("progress", "s2", "acquiring") in order, "the new session was never taken"
+    announced = order.index(("progress", "s2", "acquiring"))
+    diagnosed = order.index(("diagnosis", "s1", None))
+    assert announced < diagnosed, "the new session waited for the last one's diagnosis"
+    (last,) = [d for t, d in messages if d.get("session") == "s1" and d.get("files")]
+    assert last["stage"] == "validated"
+    assert any(f.endswith("diagnosis.json") for f in last["files"])
+    assert any(f.endswith("report.html") for f in last["files"])
+    assert worker.finished == {"s1": "completed"}
+
+
 def _free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))

@@ -37,8 +37,10 @@ It binds its own PUB (``[pipeline] results``) and publishes, as two frames ``[to
 
 The identification starts when the identification chirps are complete (and
 :data:`dtid.identification.pipeline.HOLD_OUT_S` of data past them arrived), in a thread, while the
-validation chirp is recorded. Transport: ipc by default; a ``tcp://`` endpoint without a host
-means 127.0.0.1.
+validation chirp is recorded; the diagnosis and the follow-up plan after the result run in a
+thread as well (a minute or more), and the session's last ``progress`` (with the files written)
+and its end wait for them, while the loop goes on taking events and serving a new session.
+Transport: ipc by default; a ``tcp://`` endpoint without a host means 127.0.0.1.
 
 This module is the transport and the sessions' bookkeeping; what it computes and writes for a
 session lies beside it: :mod:`~dtid.identification.service.live` (a session's data and FRFs),
@@ -220,6 +222,13 @@ class _Session:
     for the runs recorded then (absolute, 1 sigma); None in round 1 or unreadable."""
     fit: dict[str, Any] | None = None
     """The diagnosis's adequacy test of the result (``[worker] diagnose``), reused by the plan."""
+    concluding: threading.Thread | None = None
+    """The diagnosis and the follow-up plan after the result, computed beside the loop."""
+    conclusion: tuple[list[str], Path | None, list[str]] | None = None
+    """What that thread left: the files it wrote, the diagnosis JSON (or None) and the errors to
+    publish."""
+    pending: tuple[list[str], str] | None = None
+    """The files written with the result and the stage to publish once the thread is done."""
 
 
 class Worker:
@@ -318,6 +327,9 @@ class Worker:
                     return 2 if failed else 0
             return 0
         finally:
+            for session in list(self.sessions.values()):  # stopped while diagnosing: end it first
+                if session.concluding is not None and session.live is not None:
+                    self._settle(session, session.live)
             for thread in self._report_threads:  # bounded: each waits CLOSE_WAIT_S at most
                 thread.join(CLOSE_WAIT_S + 10.0)
             self._flush()
@@ -538,9 +550,13 @@ class Worker:
                 self._conclude(session, live, report)
             elif live.end is not None:
                 self._conclude(session, live, session.report)  # aborted before A3 was complete
+        if session.concluding is not None and not session.concluding.is_alive():
+            self._settle(session, live)
         if live.end is not None and session.thread is None and not live.frfs_due():
-            if session.result is not None:
+            if session.result is not None and session.concluding is None:
                 self._finish(session, str(live.end.get("status", "completed")))
+            elif session.result is not None:
+                pass  # the diagnosis or the follow-up plan is still being computed
             elif session.report is None and not live.identification_due():
                 reason = live.end.get("reason")
                 self._progress(
@@ -651,8 +667,9 @@ class Worker:
         return session.report.validated(selection) if selection.tests else session.report
 
     def _conclude(self, session: _Session, live: LiveSession, report: IdentificationReport) -> None:
-        """Publish the result and write it; diagnose, plan the follow-up and write the report as
-        the options ask."""
+        """Publish the result and write it; then diagnose and plan the follow-up, as the options
+        ask, in a thread beside the loop (:meth:`_after_result`: a minute or more, during which
+        the loop goes on taking events and serving other sessions), and write the report."""
         document = report.as_dict()
         session.result = document
         self._publish("result", document)
@@ -667,35 +684,88 @@ class Worker:
             self._progress(session, "error", message=str(error))
             return
         stage = "validated" if document["nrmse"]["validation"] else "done"
-        diagnosis_path, session.fit = None, None
-        if stage == "validated" and self.options.diagnose:
-            files = self._diagnose(session, report, folder)
-            written += files
-            diagnosis_path = Path(files[0]) if files else None
-        if self.options.plan_follow_up or live.campaign is not None:
-            written += self._plan(session, report, folder, live.campaign)
-        session.report_inputs = (self._json_path(folder), diagnosis_path)
+        session.fit = None
+        session.pending = (written, stage)
+        diagnose = stage == "validated" and self.options.diagnose
+        plan = self.options.plan_follow_up or live.campaign is not None
+        if not (diagnose or plan):
+            session.conclusion = ([], None, [])
+            self._settle(session, live)
+            return
+        session.concluding = threading.Thread(
+            target=self._after_result,
+            args=(session, report, folder, live.campaign, diagnose, plan),
+            name=f"conclude-{session.id}",
+            daemon=True,
+        )
+        session.concluding.start()
+
+    def _after_result(
+        self,
+        session: _Session,
+        report: IdentificationReport,
+        folder: Path,
+        campaign: Mapping[str, Any] | None,
+        diagnose: bool,
+        plan: bool,
+    ) -> None:
+        """The diagnosis and the follow-up plan (in the session's ``concluding`` thread): each
+        published as it is done, its files and errors left in ``session.conclusion`` for the
+        loop (:meth:`_settle`)."""
+        files: list[str] = []
+        errors: list[str] = []
+        diagnosis_path = None
         try:
-            written.append(str(write_session_report(live, document, diagnosis_path)))
+            if diagnose:
+                written = self._diagnose(session, report, folder, errors)
+                files += written
+                diagnosis_path = Path(written[0]) if written else None
+            if plan:
+                files += self._plan(session, report, folder, campaign, errors)
+        except Exception as error:  # a bug: said on the session, the worker keeps serving
+            logger.exception("session %s: internal error after the result", session.id)
+            errors.append(f"internal error: {error!r}")
+        session.conclusion = (files, diagnosis_path, errors)
+
+    def _settle(self, session: _Session, live: LiveSession) -> None:
+        """After the diagnosis and the plan: publish their errors, write the report and publish
+        the session's stage with every file written."""
+        if session.concluding is not None:
+            session.concluding.join()
+            session.concluding = None
+        assert session.conclusion is not None and session.pending is not None
+        assert session.result is not None
+        files, diagnosis_path, errors = session.conclusion
+        written, stage = session.pending
+        session.conclusion = session.pending = None
+        for message in errors:
+            self._progress(session, "error", message=message)
+        written = [*written, *files]
+        session.report_inputs = (self._json_path(live.log_path.parent), diagnosis_path)
+        try:
+            written.append(str(write_session_report(live, session.result, diagnosis_path)))
         except DtidError as error:
             self._progress(session, "error", message=f"the report: {error}")
         self._progress(session, stage, files=written)
 
-    def _diagnose(self, session: _Session, report: IdentificationReport, folder: Path) -> list[str]:
-        """Diagnose the validated identification, publish and write it; the files written."""
+    def _diagnose(
+        self, session: _Session, report: IdentificationReport, folder: Path, errors: list[str]
+    ) -> list[str]:
+        """Diagnose the validated identification, publish and write it; the files written, what
+        went wrong added to ``errors``."""
         from dtid.identification.diagnosis.diagnose import diagnose_report
 
         try:
             diagnosis = diagnose_report(report, mechanisms=self.options.mechanisms)
         except DtidError as error:
-            self._progress(session, "error", message=f"the diagnosis: {error}")
+            errors.append(f"the diagnosis: {error}")
             return []
         session.fit = adequacy_of(diagnosis.mismatch)
         self._publish("diagnosis", {"session": session.id, **diagnosis.as_dict()})
         try:
             return write_diagnosis(diagnosis, folder, self.options.plot)
         except DtidError as error:
-            self._progress(session, "error", message=str(error))
+            errors.append(str(error))
             return []
 
     def _plan(
@@ -704,10 +774,12 @@ class Worker:
         report: IdentificationReport,
         folder: Path,
         campaign: Mapping[str, Any] | None,
+        errors: list[str],
     ) -> list[str]:
         """Plan the follow-up test (:func:`dtid.identification.service.follow_up.plan_follow_up`),
-        publish and write it; the files written. In a campaign a failure is published as a plan
-        without a test and with the ``error``, so the campaign stops saying why."""
+        publish and write it; the files written, what went wrong added to ``errors``. In a
+        campaign a failure is published as a plan without a test and with the ``error``, so the
+        campaign stops saying why."""
         assert session.result is not None
         try:
             follow_up = plan_follow_up(
@@ -727,7 +799,7 @@ class Worker:
                     "plan",
                     {"session": session.id, "plan": None, "meets_targets": False, "error": message},
                 )
-            self._progress(session, "error", message=message)
+            errors.append(message)
             return []
         if campaign is not None:
             self._campaigns[str(campaign.get("id"))] = (follow_up.information, follow_up.recorded)
@@ -736,7 +808,7 @@ class Worker:
         try:
             write_json(path, follow_up.document)
         except DtidError as error:
-            self._progress(session, "error", message=str(error))
+            errors.append(str(error))
             return []
         return [str(path)]
 
