@@ -492,7 +492,9 @@ class Worker:
             return
         now = time.monotonic()
         if now - session.last_progress_wall > PROGRESS_PERIOD_S and not session.finished:
-            if live.end is None or session.thread is not None:
+            # none while the diagnosis and plan are computed: the stage they end with is the
+            # session's last word (dtid monitor takes "validated" after the end as finished)
+            if (live.end is None or session.thread is not None) and session.concluding is None:
                 self._progress(session, self._state(session))
 
     @staticmethod
