@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.diagnosis_trial import RESULTS, VISIBLE_DB, simulate_case
-from dtid.identification.diagnosis.mismatch import sidak
+from dtid.identification.diagnosis.bin_statistics import sidak
 from dtid.identification.diagnosis.refit import ACCEPT_P, REFIT_SETTINGS, Extra, Refit
 from dtid.identification.pipeline import run_identification
 from dtid.identification.search.identify import refine

@@ -15,27 +15,29 @@ from scipy import stats
 
 from dtid.acquisition.plan import TestPlan
 from dtid.cli import main as dtid
+from dtid.identification.diagnosis.bin_statistics import (
+    TREND_DEGREE,
+    bin_autocorrelation,
+    family_p_value,
+    neighbour_correlation,
+    trend_test,
+)
 from dtid.identification.diagnosis.diagnose import amplitude_trend, diagnose, diagnose_document
 from dtid.identification.diagnosis.hints import EffectiveValue
 from dtid.identification.diagnosis.mismatch import (
     EDGE_Z,
     ROUGH_SCALE,
-    TREND_DEGREE,
     TREND_LAGS,
     TREND_WINDOW,
     MismatchMap,
     NoiseFigures,
     RunResidual,
-    bin_autocorrelation,
-    family_p_value,
     find_bands,
     mismatch_map,
     model_scatter,
-    neighbour_correlation,
     scatter_scale,
     smoothed,
     trend_db,
-    trend_test,
 )
 from dtid.identification.model.cylinder_spread import (
     odd_place,

@@ -44,13 +44,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from dtid.identification.diagnosis.bin_statistics import sidak
 from dtid.identification.diagnosis.candidates import Candidate, Screened
-from dtid.identification.diagnosis.mismatch import (
-    MismatchMap,
-    RunResidual,
-    shape_level,
-    sidak,
-)
+from dtid.identification.diagnosis.mismatch import MismatchMap, RunResidual, shape_level
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
     TEST_REALIZATIONS,

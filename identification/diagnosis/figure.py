@@ -7,8 +7,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dtid.identification.diagnosis.bin_statistics import smooth_trend
 from dtid.identification.diagnosis.diagnose import Diagnosis
-from dtid.identification.diagnosis.mismatch import smooth_trend
 from dtid.identification.plots import new_figure, save_figure
 
 if TYPE_CHECKING:

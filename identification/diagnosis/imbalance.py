@@ -43,8 +43,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from dtid.identification.diagnosis.bin_statistics import sidak
 from dtid.identification.diagnosis.candidates import Candidate, Screened
-from dtid.identification.diagnosis.mismatch import sidak
 from dtid.identification.diagnosis.refit import (
     ACCEPT_P,
     Extra,

@@ -74,8 +74,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize, stats
 
+from dtid.identification.diagnosis.bin_statistics import sidak
 from dtid.identification.diagnosis.candidates import Absorbed, Candidate, Screened
-from dtid.identification.diagnosis.mismatch import MismatchMap, sidak
+from dtid.identification.diagnosis.mismatch import MismatchMap
 from dtid.identification.model.response import DEFAULT_REALIZATIONS, model_curves, model_drv_db
 from dtid.identification.pipeline import RunSelection
 from dtid.identification.search.identify import SearchSettings, refine
