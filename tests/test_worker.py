@@ -18,7 +18,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -709,6 +709,33 @@ def test_campaign_round_identifies_with_the_earlier_rounds_and_plans_within_the_
     assert set(plan["fit"]) == {"adequate", "global_p_value", "bands"}  # a campaign's plan
 
 
+Reaction = Callable[[str, dict[str, Any], threading.Event], None]
+
+
+def _worker_thread(
+    pipeline: PipelineConfig, options: WorkerOptions, react: Reaction
+) -> tuple[Worker, list[tuple[str, dict[str, Any]]], threading.Thread, threading.Event]:
+    """A worker serving in a thread until its stop event is set: its messages, each also handed
+    to ``react`` with the stop event."""
+    worker = Worker(pipeline, options)
+    messages: list[tuple[str, dict[str, Any]]] = []
+    stop = threading.Event()
+
+    def listen(topic: str, document: dict[str, Any]) -> None:
+        messages.append((topic, document))
+        react(topic, document, stop)
+
+    worker.listeners.append(listen)
+    thread = threading.Thread(target=worker.serve, kwargs={"stop": stop})
+    thread.start()
+    return worker, messages, thread, stop
+
+
+def _stop_when_s1_is_done(topic: str, document: dict[str, Any], stop: threading.Event) -> None:
+    if document.get("session") == "s1" and document.get("stage") == "done":
+        stop.set()
+
+
 def test_a_new_session_resets_the_worker(
     session: SimulatedSession, ipc_dir: Path, offline: dict
 ) -> None:
@@ -719,18 +746,7 @@ def test_a_new_session_resets_the_worker(
     options = WorkerOptions(
         settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json", plot=False
     )
-    worker = Worker(pipeline, options)
-    messages: list[tuple[str, dict[str, Any]]] = []
-    stop = threading.Event()
-
-    def listen(topic: str, document: dict[str, Any]) -> None:
-        messages.append((topic, document))
-        if document.get("session") == "s1" and document.get("stage") == "done":
-            stop.set()
-
-    worker.listeners.append(listen)
-    thread = threading.Thread(target=worker.serve, kwargs={"stop": stop})
-    thread.start()
+    worker, messages, thread, stop = _worker_thread(pipeline, options, _stop_when_s1_is_done)
     daemon.go.set()
     try:
         thread.join(60)
@@ -772,20 +788,13 @@ def test_a_session_that_begins_while_the_last_is_diagnosed_is_served_at_once(
         diagnose=True,
         mechanisms=SCREENED,
     )
-    worker = Worker(pipeline, options)
-    messages: list[tuple[str, dict[str, Any]]] = []
-    stop = threading.Event()
 
-    def listen(topic: str, document: dict[str, Any]) -> None:
-        messages.append((topic, document))
+    def react(topic: str, document: dict[str, Any], stop: threading.Event) -> None:
         if document.get("session") == "s2" and document.get("stage") == "acquiring":
             release.set()
-        if document.get("session") == "s1" and document.get("stage") == "done":
-            stop.set()
+        _stop_when_s1_is_done(topic, document, stop)
 
-    worker.listeners.append(listen)
-    thread = threading.Thread(target=worker.serve, kwargs={"stop": stop})
-    thread.start()
+    worker, messages, thread, stop = _worker_thread(pipeline, options, react)
     daemon.go.set()
     try:
         assert diagnosing.wait(120), "the worker never diagnosed"
