@@ -555,10 +555,9 @@ class Worker:
         if session.concluding is not None and not session.concluding.is_alive():
             self._settle(session, live)
         if live.end is not None and session.thread is None and not live.frfs_due():
-            if session.result is not None and session.concluding is None:
-                self._finish(session, str(live.end.get("status", "completed")))
-            elif session.result is not None:
-                pass  # the diagnosis or the follow-up plan is still being computed
+            if session.result is not None:
+                if session.concluding is None:  # else the diagnosis or plan is being computed
+                    self._finish(session, str(live.end.get("status", "completed")))
             elif session.report is None and not live.identification_due():
                 reason = live.end.get("reason")
                 self._progress(
