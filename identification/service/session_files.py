@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from dtid.errors import DtidError
+from dtid.identification.html_report import DIAGNOSIS_FILE
 from dtid.identification.pipeline import IdentificationReport
 from dtid.identification.service.live import LiveSession
 from dtid.jsonfile import write_json
@@ -24,10 +25,6 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-IDENTIFICATION_FILE = "identification.json"
-"""The session's identification beside its log, unless the options name another file."""
-DIAGNOSIS_FILE = "diagnosis.json"
-"""The session's diagnosis beside its log (``[worker] diagnose``); its figure beside it as .png."""
 CLOSE_WAIT_S = 30.0
 """Longest wall time the worker waits, after a session's end, for the daemon to close its log
 (an .mf4 session's conversion included) before it rewrites the report from the files."""

@@ -72,6 +72,7 @@ from dtid.dbc.loader import load_interface
 from dtid.errors import ConfigError, DtidError
 from dtid.identification.diagnosis.mismatch import adequacy_of
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ
+from dtid.identification.html_report import IDENTIFICATION_FILE
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import IdentificationReport, identify_runs, validation_runs
 from dtid.identification.planning.spread import DEFAULT_VEHICLES
@@ -89,7 +90,6 @@ from dtid.identification.service.follow_up import (
 from dtid.identification.service.live import EventLog, LiveSession
 from dtid.identification.service.session_files import (
     CLOSE_WAIT_S,
-    IDENTIFICATION_FILE,
     rewrite_report,
     write_diagnosis,
     write_result,
