@@ -865,6 +865,54 @@ def test_a_session_that_begins_while_the_last_is_diagnosed_is_served_at_once(
     assert worker.finished == {"s1": "completed"}
 
 
+def test_a_stop_during_the_diagnosis_ends_the_worker_with_the_result_and_a_report(
+    session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A stop (SIGTERM from systemd, which kills after 90 s) does not wait for a diagnosis of
+    minutes: after :data:`STOP_WAIT_S` the session's report is written with the result, an
+    error says what was interrupted and how to finish it, and the worker returns while the
+    diagnosis is still held."""
+    from dtid.identification.diagnosis import diagnose as diagnose_module
+
+    diagnosing, release = threading.Event(), threading.Event()
+
+    def held(report: Any, **kwargs: Any) -> Any:
+        diagnosing.set()
+        release.wait(120)  # bound: released at the test's end
+        raise AssertionError("a diagnosis the stop no longer waited for")
+
+    monkeypatch.setattr(diagnose_module, "diagnose_report", held)
+    monkeypatch.setattr(worker_module, "STOP_WAIT_S", 0.5)
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=200.0)
+    json_path = ipc_dir / "r.json"
+    options = WorkerOptions(
+        settings=BUDGET, profile_points=0, json_path=json_path, plot=False, diagnose=True
+    )
+    _, messages, thread, stop = _worker_thread(pipeline, options, lambda *_: None)
+    daemon.go.set()
+    try:
+        assert diagnosing.wait(120), "the worker never diagnosed"
+        stop.set()
+        thread.join(60)  # bound: the stop waits STOP_WAIT_S, the report's close wait at most
+        assert not thread.is_alive(), "the stop waited for the diagnosis"
+        assert not release.is_set()
+    finally:
+        stop.set()
+        release.set()
+        thread.join(10)
+        daemon.close()
+    s1 = [d for t, d in messages if t == "progress" and d.get("session") == "s1"]
+    (said,) = [d["message"] for d in s1 if d["stage"] == "error"]
+    assert "stopped before the diagnosis" in said
+    assert f"dtid diagnose {session.log_path} --identification {json_path}" in said
+    (last,) = [d for d in s1 if d.get("files")]
+    assert last["stage"] == "validated"
+    assert str(json_path) in last["files"] and json.loads(json_path.read_text())["parameters"]
+    assert any(f.endswith("report.html") for f in last["files"])
+    assert not any(f.endswith("diagnosis.json") for f in last["files"])
+
+
 def _free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))

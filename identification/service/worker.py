@@ -119,6 +119,10 @@ POLL_MS = 100
 """Longest wait for a message before the loop looks at its sessions again, ms."""
 DRAIN = 2000
 """Most messages taken from the stream before the sessions are advanced."""
+STOP_WAIT_S = 20.0
+"""Longest wall time a stop waits for a session's diagnosis and follow-up plan to end, s: then
+the session's report is written with what is done and says what the stop interrupted (within
+systemd's 90 s for a stop, with the report threads' :data:`CLOSE_WAIT_S`)."""
 
 
 def leave_a_core_to_the_bus() -> int:
@@ -195,6 +199,19 @@ class WorkerOptions:
 
 
 @dataclass
+class _Conclusion:
+    """What a session's diagnosis and follow-up plan left, filled in as each is done (a stop
+    that cannot wait for the rest reports what is there)."""
+
+    files: list[str] = field(default_factory=list)
+    """The files written."""
+    diagnosis: Path | None = None
+    """The diagnosis JSON, once written."""
+    errors: list[str] = field(default_factory=list)
+    """What went wrong, to publish."""
+
+
+@dataclass
 class _Session:
     """A session's events and the worker's state of its analysis."""
 
@@ -224,9 +241,8 @@ class _Session:
     """The diagnosis's adequacy test of the result (``[worker] diagnose``), reused by the plan."""
     concluding: threading.Thread | None = None
     """The diagnosis and the follow-up plan after the result, computed beside the loop."""
-    conclusion: tuple[list[str], Path | None, list[str]] | None = None
-    """What that thread left: the files it wrote, the diagnosis JSON (or None) and the errors to
-    publish."""
+    conclusion: _Conclusion | None = None
+    """What that thread has left so far."""
     pending: tuple[list[str], str] | None = None
     """The files written with the result and the stage to publish once the thread is done."""
 
@@ -329,7 +345,7 @@ class Worker:
         finally:
             for session in list(self.sessions.values()):  # stopped while diagnosing: end it first
                 if session.concluding is not None and session.live is not None:
-                    self._settle(session, session.live)
+                    self._settle(session, session.live, wait_s=STOP_WAIT_S)
             for thread in self._report_threads:  # bounded: each waits CLOSE_WAIT_S at most
                 thread.join(CLOSE_WAIT_S + 10.0)
             self._flush()
@@ -689,8 +705,8 @@ class Worker:
         session.pending = (written, stage)
         diagnose = stage == "validated" and self.options.diagnose
         plan = self.options.plan_follow_up or live.campaign is not None
+        session.conclusion = _Conclusion()
         if not (diagnose or plan):
-            session.conclusion = ([], None, [])
             self._settle(session, live)
             return
         session.concluding = threading.Thread(
@@ -711,37 +727,40 @@ class Worker:
         plan: bool,
     ) -> None:
         """The diagnosis and the follow-up plan (in the session's ``concluding`` thread): each
-        published as it is done, its files and errors left in ``session.conclusion`` for the
+        published as it is done, its files and errors added to ``session.conclusion`` for the
         loop (:meth:`_settle`)."""
-        files: list[str] = []
-        errors: list[str] = []
-        diagnosis_path = None
+        conclusion = session.conclusion
+        assert conclusion is not None
         try:
             if diagnose:
-                written = self._diagnose(session, report, folder, errors)
-                files += written
-                diagnosis_path = Path(written[0]) if written else None
+                written = self._diagnose(session, report, folder, conclusion.errors)
+                conclusion.files += written
+                conclusion.diagnosis = Path(written[0]) if written else None
             if plan:
-                files += self._plan(session, report, folder, campaign, errors)
+                conclusion.files += self._plan(session, report, folder, campaign, conclusion.errors)
         except Exception as error:  # a bug: said on the session, the worker keeps serving
             logger.exception("session %s: internal error after the result", session.id)
-            errors.append(f"internal error: {error!r}")
-        session.conclusion = (files, diagnosis_path, errors)
+            conclusion.errors.append(f"internal error: {error!r}")
 
-    def _settle(self, session: _Session, live: LiveSession) -> None:
+    def _settle(self, session: _Session, live: LiveSession, wait_s: float | None = None) -> None:
         """After the diagnosis and the plan: publish their errors, write the report and publish
-        the session's stage with every file written."""
-        if session.concluding is not None:
-            session.concluding.join()
-            session.concluding = None
-        assert session.conclusion is not None and session.pending is not None
+        the session's stage with every file written. ``wait_s`` bounds the wait for them (a
+        stop): what is not done by then is said interrupted, and the thread, a daemon, is left."""
+        conclusion = session.conclusion
+        assert conclusion is not None and session.pending is not None
         assert session.result is not None
-        files, diagnosis_path, errors = session.conclusion
+        errors = conclusion.errors
+        if session.concluding is not None:
+            session.concluding.join(wait_s)
+            if session.concluding.is_alive():
+                errors = [*errors, _interrupted(live, self._json_path(live.log_path.parent))]
+            session.concluding = None
         written, stage = session.pending
         session.conclusion = session.pending = None
         for message in errors:
             self._progress(session, "error", message=message)
-        written = [*written, *files]
+        written = [*written, *conclusion.files]
+        diagnosis_path = conclusion.diagnosis
         session.report_inputs = (self._json_path(live.log_path.parent), diagnosis_path)
         try:
             written.append(str(write_session_report(live, session.result, diagnosis_path)))
@@ -877,3 +896,14 @@ class Worker:
                 self._pub.send_multipart([topic.encode(), body.encode()])
             for callback in self.listeners:
                 callback(topic, document)
+
+
+def _interrupted(live: LiveSession, json_path: Path) -> str:
+    """What a stop said of a session whose diagnosis or follow-up plan it could not wait for."""
+    files = live.start.get("interface") or {}
+    interface = "".join(f" --{key} {files[key]}" for key in ("dbc", "signals") if files.get(key))
+    return (
+        f"the worker was stopped before the diagnosis and the follow-up plan were done (it waited"
+        f" {STOP_WAIT_S:g} s): the result is written; `dtid diagnose {live.log_path}{interface}"
+        f" --identification {json_path}` diagnoses it and `dtid plan` plans the next test"
+    )
