@@ -8,6 +8,7 @@ from pathlib import Path
 from dtid.dbc.database import load_database
 from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.resources import DEFAULT_DBC, DEFAULT_SIGNAL_MAP
+from dtid.dbc.role_candidates import describe_candidates
 from dtid.dbc.signal_map import load_signal_map
 from dtid.errors import DbcError
 
@@ -38,8 +39,10 @@ def load_interface(
         return signal_map.bind(database, dbc_path)
     except DbcError as error:
         if signals is None and dbc is not None:
+            candidates = describe_candidates(database, tuple(signal_map.roles))
             raise DbcError(
                 f"{error}. {dbc_path} is not the product's DBC: pass a signal map for it with "
-                "--signals (see dbc/drivetrain_signals.toml for the format)"
+                "--signals (see dbc/drivetrain_signals.toml for the format). Its signals whose "
+                f"unit fits a role: {candidates}"
             ) from None
         raise

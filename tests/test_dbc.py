@@ -3,6 +3,7 @@
 import json
 import logging
 import math
+import tomllib
 from pathlib import Path
 
 import can
@@ -21,6 +22,8 @@ from dtid.dbc import (
     load_signal_map,
     verify_checksum,
 )
+from dtid.dbc.loader import load_interface
+from dtid.dbc.role_candidates import SHOWN, describe_candidates, signals_by_unit
 from dtid.dbc.roles import DEFAULT_REQUEST_TIMEOUT_S
 from dtid.errors import ConfigError, DbcError
 
@@ -307,7 +310,6 @@ def test_the_independent_speed_flag_reads_every_frame_valid(tmp_path):
     folder = Path(__file__).resolve().parents[2] / "shared" / "independent" / "vehicle_2"
     if not folder.is_dir():
         pytest.skip(f"independent recordings not present in {folder}")
-    from dtid.dbc.loader import load_interface
 
     text = (folder / "signals.toml").read_text()
     flagged = write_map(tmp_path, text.replace("[speed]", '[speed]\nvalid = "EMS_EngSpdValid"'))
@@ -607,3 +609,72 @@ def test_hyundai_kia_decodes_genesis_log(realdata, tmp_path):
 def test_ford_dbc_loads(realdata):
     database = load_database(realdata / "ford_lincoln_base_pt.dbc")
     assert len(database.messages) == 331
+
+
+# --- a foreign DBC: its candidate signals for the roles -------------------------------------------
+
+FOREIGN_DBC = """VERSION ""
+BS_:
+BU_: EMS TCU
+BO_ 256 Motor_1: 8 EMS
+ SG_ Motordrehzahl : 0|16@1+ (0.25,0) [0|16383] "U/min" TCU
+ SG_ Fahrpedal : 16|8@1+ (0.4,0) [0|100] "%" TCU
+ SG_ Moment_Ist : 24|16@1+ (0.1,0) [0|500] " Nm " TCU
+BO_ 257 Raeder: 8 EMS
+ SG_ Rad_VL : 0|16@1+ (0.01,0) [0|600] "rad/s" TCU
+ SG_ Drehzahl_Soll : 16|16@1+ (1,0) [0|8000] "RPM" TCU
+"""
+
+
+def test_a_foreign_dbc_is_answered_with_its_signals_in_a_speeds_and_a_torques_unit(tmp_path):
+    path = tmp_path / "foreign.dbc"
+    path.write_text(FOREIGN_DBC)
+    # the engine speeds (U/min, RPM) before the wheel's rad/s; the pedal's % is none
+    assert signals_by_unit(load_database(path)) == {
+        "rpm": [
+            ("Motor_1.Motordrehzahl", "rpm"),
+            ("Raeder.Drehzahl_Soll", "rpm"),
+            ("Raeder.Rad_VL", "rad/s"),
+        ],
+        "N*m": [("Motor_1.Moment_Ist", "N*m")],
+    }
+    with pytest.raises(DbcError) as error:
+        load_interface(dbc=path)
+    said = str(error.value)
+    assert "is not the product's DBC: pass a signal map for it with --signals" in said
+    assert (
+        "speed (rpm): Motor_1.Motordrehzahl, Raeder.Drehzahl_Soll, Raeder.Rad_VL (unit = "
+        '"rad/s"); mean_torque, test_torque, torque_request (N*m): Motor_1.Moment_Ist (many'
+    ) in said
+    assert "Fahrpedal" not in said
+
+
+def test_a_long_list_of_candidates_is_cut_and_a_dbc_without_any_says_so(tmp_path):
+    many = "".join(
+        f'BO_ {300 + k} M{k}: 8 EMS\n SG_ N{k} : 0|16@1+ (1,0) [0|8000] "rpm" TCU\n'
+        for k in range(SHOWN + 3)
+    )
+    path = tmp_path / "many.dbc"
+    path.write_text('VERSION ""\nBS_:\nBU_: EMS TCU\n' + many)
+    said = describe_candidates(load_database(path), ("speed", "mean_torque", "heartbeat"))
+    assert (
+        said.startswith("speed (rpm): M0.N0, M1.N1, ")
+        and f"M{SHOWN - 1}.N{SHOWN - 1} and 3 more" in said
+    )
+    assert f"M{SHOWN}.N{SHOWN}" not in said
+    assert "; mean_torque (N*m): none (many ECUs give their torques in %" in said
+
+
+def test_the_independent_vehicles_own_map_is_among_the_candidates_for_their_dbc():
+    """The independent source wrote a signal map for its OEM DBC: every signal it maps is
+    offered for its role when that DBC comes without a map."""
+    folder = Path(__file__).resolve().parents[2] / "shared" / "independent" / "vehicle_1"
+    if not folder.is_dir():
+        pytest.skip(f"independent recordings not present in {folder}")
+    with pytest.raises(DbcError) as error:
+        load_interface(dbc=folder / "oem_vehicle.dbc")
+    said = str(error.value)
+    mapped = tomllib.loads((folder / "signals.toml").read_text())
+    roles = ("speed", "mean_torque", "test_torque", "torque_request")
+    for role in roles:
+        assert f"{mapped[role]['message']}.{mapped[role]['signal']}" in said, role
