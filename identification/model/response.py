@@ -48,6 +48,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+import numba
 import numpy as np
 
 from dtid.identification.frf.closed_loop import (
@@ -383,34 +384,40 @@ def _run_curves(
         z = np.zeros((n_jobs, length))
     # a run left the speed range after the run's window counts (see DRIVEN_MARGIN_S): the window
     # is checked below; a full buffer may have cut the torque's samples short
-    for job in np.flatnonzero(batch.status != STATUS_BUFFER_FULL):
-        speed = batch.speed[job, : batch.n_speed[job]]
-        torque = batch.torque[job, : batch.n_torque[job]]
-        if recorded_z is None:
-            first = np.searchsorted(speed[:, 0], start_s)
-        else:
-            first = loop.model_event(run_event, replay.start_event)
-        if first + length > len(speed) or (recorded_z is not None and len(recorded_z) < length):
-            continue
-        t = speed[first : first + length, 0]
-        held_torque = np.clip(np.searchsorted(torque[:, 0], t, side="right") - 1, 0, None)
-        y[job] = speed[first : first + length, 1]
-        x[job] = speed[first : first + length, 2] if from_request else torque[held_torque, 1]
-        if engine:
-            u[job] = speed[first : first + length, 2]
-        if engine and recorded_z is not None:
-            # the kernel reports the request a stroke latches, the drive held over the stroke;
-            # the vehicle's ECU held its request event by event: the model's T_ecu is that plus
-            # its own tracking command (the kernel's report less the stroke's drive; the speed
-            # sample n ends speed window n + 1, the next stroke is (n + 1) // SAMPLES_PER_STROKE)
-            rows = np.arange(first, first + length)
-            stroke = np.minimum((rows + 1) // SAMPLES_PER_STROKE, len(stroke_drive) - 1)
-            u[job] += recorded_u - stroke_drive[stroke]
-        if recorded_z is None:
-            held_request = np.searchsorted(requests.t, t, side="right") - 1
-            z[job] = np.where(held_request >= 0, requests.value[held_request], 0.0)
-        rate[job] = 1.0 / np.median(np.diff(t))
-        ok[job] = True
+    jobs = np.flatnonzero((batch.status != STATUS_BUFFER_FULL) & (batch.n_torque > 0))
+    if recorded_z is not None and len(recorded_z) < length:
+        jobs = jobs[:0]
+    if recorded_z is None:
+        first = np.array(
+            [np.searchsorted(batch.speed[j, : batch.n_speed[j], 0], start_s) for j in jobs],
+            dtype=np.int64,
+        )
+    else:
+        first = np.full(len(jobs), loop.model_event(run_event, replay.start_event))
+    keep = first + length <= batch.n_speed[jobs]
+    jobs, first = jobs[keep], first[keep]
+    ok[jobs] = True
+    window = first[:, None] + np.arange(length)  # each kept job's rows, (n_kept, length)
+    t = batch.speed[jobs[:, None], window, 0]
+    y[jobs] = batch.speed[jobs[:, None], window, 1]
+    if from_request:
+        x[jobs] = batch.speed[jobs[:, None], window, 2]
+    else:
+        x[jobs] = _held_torque(batch.torque, batch.n_torque, jobs, t)
+    if engine:
+        u[jobs] = batch.speed[jobs[:, None], window, 2]
+    if engine and recorded_z is not None and len(jobs):
+        # the kernel reports the request a stroke latches, the drive held over the stroke; the
+        # vehicle's ECU held its request event by event: the model's T_ecu is that plus its own
+        # tracking command (the kernel's report less the stroke's drive; the speed sample n ends
+        # speed window n + 1, the next stroke is (n + 1) // SAMPLES_PER_STROKE)
+        rows = np.arange(first[0], first[0] + length)
+        stroke = np.minimum((rows + 1) // SAMPLES_PER_STROKE, len(stroke_drive) - 1)
+        u[jobs] += recorded_u - stroke_drive[stroke]
+    if recorded_z is None:
+        held_request = np.searchsorted(requests.t, t, side="right") - 1
+        z[jobs] = np.where(held_request >= 0, requests.value[held_request], 0.0)
+    rate[jobs] = 1.0 / np.median(np.diff(t, axis=1), axis=1)
     db = np.full((n_sets, len(estimate.frequency_hz)), np.nan)
     eng_db = db.copy()
     if not ok.any():
@@ -436,3 +443,22 @@ def _run_curves(
             )
             eng_db[row] = np.interp(estimate.frequency_hz, frequency, 20 * np.log10(gain))
     return ModelCurves(db, eng_db)
+
+
+@numba.njit(cache=True)
+def _held_torque(
+    torque: np.ndarray, n_torque: np.ndarray, jobs: np.ndarray, t: np.ndarray
+) -> np.ndarray:
+    """The mean torque each job's cylinder-pressure sensor last reported at each time of ``t``
+    (the first report before it), N*m: ``torque`` and ``n_torque`` as
+    :class:`dtid.simulator.simulate.BatchResult` gives them, ``t`` (len(jobs), n) increasing
+    along each row, s. What ``np.searchsorted(side="right") - 1`` clipped at 0 indexes, in one
+    pass per job."""
+    held = np.empty(t.shape)
+    for row in range(jobs.shape[0]):
+        job, count = jobs[row], 0
+        for k in range(t.shape[1]):
+            while count < n_torque[job] and torque[job, count, 0] <= t[row, k]:
+                count += 1
+            held[row, k] = torque[job, max(count - 1, 0), 1]
+    return held
