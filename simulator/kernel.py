@@ -249,11 +249,14 @@ class Job(NamedTuple):
 
 class Jobs(NamedTuple):
     """Many :class:`Job` s for :func:`run_plant_batch`: each field of a job with a leading job
-    axis (``request_scale`` and ``n_sub`` as arrays)."""
+    axis (``request_scale`` and ``n_sub`` as arrays), but the noise draws: jobs share their
+    rows (common random numbers), and ``noise_row`` gives each job's row of ``cv_noise``,
+    ``speed_noise`` and ``torque_noise``."""
 
     params: np.ndarray
     request_scale: np.ndarray
     n_sub: np.ndarray
+    noise_row: np.ndarray
     cv_noise: np.ndarray
     speed_noise: np.ndarray
     torque_noise: np.ndarray
@@ -601,13 +604,14 @@ def run_plant_batch(loop: Loop, jobs: Jobs, t_end: float, counts: np.ndarray) ->
     count and status.
     """
     for j in numba.prange(jobs.params.shape[0]):
+        row = jobs.noise_row[j]
         job = Job(
             jobs.params[j],
             jobs.request_scale[j],
             jobs.n_sub[j],
-            jobs.cv_noise[j],
-            jobs.speed_noise[j],
-            jobs.torque_noise[j],
+            jobs.cv_noise[row],
+            jobs.speed_noise[row],
+            jobs.torque_noise[row],
             jobs.out_speed[j],
             jobs.out_torque[j],
         )

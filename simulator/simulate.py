@@ -7,6 +7,7 @@ whatever the number of threads.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -476,6 +477,18 @@ def simulate_batch(
     )
 
 
+@functools.lru_cache(maxsize=64)
+def _draws(seed: int, stream: int, n_strokes: int, n_speed: int) -> tuple[np.ndarray, ...]:
+    """The standard normal draws of noise stream ``(seed, stream)``: the combustion variation's
+    and the torque sensor's (one per stroke), then the speed sensor's (one per speed sample),
+    read-only. Kept: an identification replays the same streams thousands of times."""
+    rng = np.random.default_rng((seed, stream))
+    draws = tuple(rng.standard_normal(n) for n in (n_strokes, n_strokes, n_speed))
+    for array in draws:
+        array.flags.writeable = False
+    return draws
+
+
 def replay_batch(
     params: np.ndarray,
     request_t: np.ndarray,
@@ -549,20 +562,31 @@ def replay_batch(
     if signs.shape != (n_jobs,) or not np.all(np.abs(signs) == 1):
         raise ConfigError(f"signs must be ({n_jobs},) values of +1 or -1")
     n_speed_max, n_stroke_max = output_capacity(t_end, options.controller)
-    cv_noise = np.empty((n_jobs, n_stroke_max))
-    torque_noise = np.empty((n_jobs, n_stroke_max))
-    speed_noise = np.empty((n_jobs, n_speed_max))
-    for stream in np.unique(streams):
-        rng = np.random.default_rng((seed, int(stream)))
-        rows = streams == stream
-        sign = signs[rows, None]
-        cv_noise[rows] = sign * rng.standard_normal(n_stroke_max)
-        torque_noise[rows] = sign * rng.standard_normal(n_stroke_max)
-        speed_noise[rows] = sign * rng.standard_normal(n_speed_max)
+    # one row of draws per (stream, sign) pair, shared by the jobs that have it
+    pairs, noise_row = np.unique(
+        np.stack([streams, signs < 0], axis=1), axis=0, return_inverse=True
+    )
+    rows = [
+        (-1.0 if negated else 1.0, _draws(seed, int(stream), n_stroke_max, n_speed_max))
+        for stream, negated in pairs
+    ]
+    cv_noise, torque_noise, speed_noise = (
+        np.stack([sign * draws[k] for sign, draws in rows]) for k in range(3)
+    )
     n_sub = np.array([substeps(row, options.controller) for row in params], dtype=np.int64)
     out_speed = np.empty((n_jobs, n_speed_max, 5))
     out_torque = np.empty((n_jobs, n_stroke_max, 3))
     counts = np.zeros((n_jobs, 3), dtype=np.int64)
-    jobs = Jobs(params, scales, n_sub, cv_noise, speed_noise, torque_noise, out_speed, out_torque)
+    jobs = Jobs(
+        params,
+        scales,
+        n_sub,
+        noise_row.reshape(n_jobs).astype(np.int64),
+        cv_noise,
+        speed_noise,
+        torque_noise,
+        out_speed,
+        out_torque,
+    )
     run_plant_batch(loop, jobs, t_end, counts)
     return BatchResult(out_speed, out_torque, counts[:, 0], counts[:, 1], counts[:, 2])
