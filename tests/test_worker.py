@@ -913,6 +913,42 @@ def test_a_stop_during_the_diagnosis_ends_the_worker_with_the_result_and_a_repor
     assert not any(f.endswith("diagnosis.json") for f in last["files"])
 
 
+def test_a_stop_during_the_identification_says_so_and_how_to_get_the_result(
+    session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A stop does not wait for a search of a minute or more: the session gets an error naming
+    what was lost and the command that gives it, and the worker returns at once."""
+    identifying, release = threading.Event(), threading.Event()
+
+    def held(*args: Any, **kwargs: Any) -> Any:
+        identifying.set()
+        release.wait(120)  # bound: released at the test's end
+        raise AssertionError("an identification the stop no longer waited for")
+
+    monkeypatch.setattr(worker_module, "identify_runs", held)
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=200.0)
+    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json")
+    _, messages, thread, stop = _worker_thread(pipeline, options, lambda *_: None)
+    daemon.go.set()
+    try:
+        assert identifying.wait(120), "the worker never identified"
+        stop.set()
+        thread.join(60)  # bound: the stop waits for no search
+        assert not thread.is_alive(), "the stop waited for the identification"
+        assert not release.is_set()
+    finally:
+        stop.set()
+        release.set()
+        thread.join(10)
+        daemon.close()
+    s1 = [d for t, d in messages if t == "progress" and d.get("session") == "s1"]
+    assert s1[-1]["stage"] == "error"
+    assert s1[-1]["message"].startswith("the worker was stopped during the identification")
+    assert f"`dtid identify {session.log_path}`" in s1[-1]["message"]
+    assert not [d for t, d in messages if t == "result"] and not (ipc_dir / "r.json").exists()
+
+
 def _free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))

@@ -346,6 +346,8 @@ class Worker:
             for session in list(self.sessions.values()):  # stopped while diagnosing: end it first
                 if session.concluding is not None and session.live is not None:
                     self._settle(session, session.live, wait_s=STOP_WAIT_S)
+                elif session.thread is not None and session.live is not None:  # identifying
+                    self._progress(session, "error", message=_stopped_identifying(session.live))
             for thread in self._report_threads:  # bounded: each waits CLOSE_WAIT_S at most
                 thread.join(CLOSE_WAIT_S + 10.0)
             self._flush()
@@ -900,10 +902,25 @@ class Worker:
 
 def _interrupted(live: LiveSession, json_path: Path) -> str:
     """What a stop said of a session whose diagnosis or follow-up plan it could not wait for."""
-    files = live.start.get("interface") or {}
-    interface = "".join(f" --{key} {files[key]}" for key in ("dbc", "signals") if files.get(key))
     return (
         f"the worker was stopped before the diagnosis and the follow-up plan were done (it waited"
-        f" {STOP_WAIT_S:g} s): the result is written; `dtid diagnose {live.log_path}{interface}"
-        f" --identification {json_path}` diagnoses it and `dtid plan` plans the next test"
+        f" {STOP_WAIT_S:g} s): the result is written; `dtid diagnose {live.log_path}"
+        f"{_interface_options(live)} --identification {json_path}` diagnoses it and `dtid plan`"
+        " plans the next test"
     )
+
+
+def _stopped_identifying(live: LiveSession) -> str:
+    """What a stop said of a session it stopped in its identification (the search is not
+    waited for: a minute or more)."""
+    return (
+        "the worker was stopped during the identification: no result; restarted, it identifies"
+        " the session again from the events the daemon keeps, or once the log is closed"
+        f" `dtid identify {live.log_path}{_interface_options(live)}` does"
+    )
+
+
+def _interface_options(live: LiveSession) -> str:
+    """The session's ``--dbc`` and ``--signals`` options for a command line, if it had any."""
+    files = live.start.get("interface") or {}
+    return "".join(f" --{key} {files[key]}" for key in ("dbc", "signals") if files.get(key))
