@@ -865,6 +865,42 @@ def test_a_session_that_begins_while_the_last_is_diagnosed_is_served_at_once(
     assert worker.finished == {"s1": "completed"}
 
 
+class _Held:
+    """A stand-in for a long computation of the worker's: it says it began, then waits until
+    released (at most 120 s) and fails, for a test that stops the worker meanwhile."""
+
+    def __init__(self) -> None:
+        self.began, self.released = threading.Event(), threading.Event()
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        self.began.set()
+        self.released.wait(120)
+        raise AssertionError("a computation the stop no longer waited for")
+
+
+def _stopped_while_held(
+    session: SimulatedSession, ipc_dir: Path, options: WorkerOptions, held: _Held
+) -> list[tuple[str, dict[str, Any]]]:
+    """Serve the session; once ``held`` began, stop the worker: its messages, asserting that it
+    returned while ``held`` was still held."""
+    pipeline = _pipeline(ipc_dir)
+    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=200.0)
+    _, messages, thread, stop = _worker_thread(pipeline, options, lambda *_: None)
+    daemon.go.set()
+    try:
+        assert held.began.wait(120), "the worker never began the held computation"
+        stop.set()
+        thread.join(60)  # bound: what the stop waits for is well within it
+        assert not thread.is_alive(), "the stop waited for the held computation"
+        assert not held.released.is_set()
+    finally:
+        stop.set()
+        held.released.set()
+        thread.join(10)
+        daemon.close()
+    return messages
+
+
 def test_a_stop_during_the_diagnosis_ends_the_worker_with_the_result_and_a_report(
     session: SimulatedSession, ipc_dir: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -874,34 +910,14 @@ def test_a_stop_during_the_diagnosis_ends_the_worker_with_the_result_and_a_repor
     diagnosis is still held."""
     from dtid.identification.diagnosis import diagnose as diagnose_module
 
-    diagnosing, release = threading.Event(), threading.Event()
-
-    def held(report: Any, **kwargs: Any) -> Any:
-        diagnosing.set()
-        release.wait(120)  # bound: released at the test's end
-        raise AssertionError("a diagnosis the stop no longer waited for")
-
+    held = _Held()
     monkeypatch.setattr(diagnose_module, "diagnose_report", held)
     monkeypatch.setattr(worker_module, "STOP_WAIT_S", 0.5)
-    pipeline = _pipeline(ipc_dir)
-    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=200.0)
     json_path = ipc_dir / "r.json"
     options = WorkerOptions(
         settings=BUDGET, profile_points=0, json_path=json_path, plot=False, diagnose=True
     )
-    _, messages, thread, stop = _worker_thread(pipeline, options, lambda *_: None)
-    daemon.go.set()
-    try:
-        assert diagnosing.wait(120), "the worker never diagnosed"
-        stop.set()
-        thread.join(60)  # bound: the stop waits STOP_WAIT_S, the report's close wait at most
-        assert not thread.is_alive(), "the stop waited for the diagnosis"
-        assert not release.is_set()
-    finally:
-        stop.set()
-        release.set()
-        thread.join(10)
-        daemon.close()
+    messages = _stopped_while_held(session, ipc_dir, options, held)
     s1 = [d for t, d in messages if t == "progress" and d.get("session") == "s1"]
     (said,) = [d["message"] for d in s1 if d["stage"] == "error"]
     assert "stopped before the diagnosis" in said
@@ -918,35 +934,16 @@ def test_a_stop_during_the_identification_says_so_and_how_to_get_the_result(
 ) -> None:
     """A stop does not wait for a search of a minute or more: the session gets an error naming
     what was lost and the command that gives it, and the worker returns at once."""
-    identifying, release = threading.Event(), threading.Event()
-
-    def held(*args: Any, **kwargs: Any) -> Any:
-        identifying.set()
-        release.wait(120)  # bound: released at the test's end
-        raise AssertionError("an identification the stop no longer waited for")
-
+    held = _Held()
     monkeypatch.setattr(worker_module, "identify_runs", held)
-    pipeline = _pipeline(ipc_dir)
-    daemon = FakeDaemon(pipeline, session.events, bus_per_wall=200.0)
-    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=ipc_dir / "r.json")
-    _, messages, thread, stop = _worker_thread(pipeline, options, lambda *_: None)
-    daemon.go.set()
-    try:
-        assert identifying.wait(120), "the worker never identified"
-        stop.set()
-        thread.join(60)  # bound: the stop waits for no search
-        assert not thread.is_alive(), "the stop waited for the identification"
-        assert not release.is_set()
-    finally:
-        stop.set()
-        release.set()
-        thread.join(10)
-        daemon.close()
+    json_path = ipc_dir / "r.json"
+    options = WorkerOptions(settings=BUDGET, profile_points=0, json_path=json_path)
+    messages = _stopped_while_held(session, ipc_dir, options, held)
     s1 = [d for t, d in messages if t == "progress" and d.get("session") == "s1"]
     assert s1[-1]["stage"] == "error"
     assert s1[-1]["message"].startswith("the worker was stopped during the identification")
     assert f"`dtid identify {session.log_path}`" in s1[-1]["message"]
-    assert not [d for t, d in messages if t == "result"] and not (ipc_dir / "r.json").exists()
+    assert not [d for t, d in messages if t == "result"] and not json_path.exists()
 
 
 def _free_port() -> int:
