@@ -15,6 +15,7 @@ from types import MappingProxyType
 from cantools.database.can import Database
 
 from dtid.dbc.roles import CANONICAL_UNITS
+from dtid.dbc.signal_map import UNIT_FACTORS
 
 DBC_UNITS: Mapping[str, str] = MappingProxyType(
     {
@@ -34,7 +35,7 @@ DBC_UNITS: Mapping[str, str] = MappingProxyType(
 """A DBC's spelling of a unit (lower case, spaces around it dropped) -> the unit a signal map
 gives for it (``unit`` of :mod:`dtid.dbc.signal_map`): the spellings of production DBCs (Ford
 ``RPM``, Volkswagen ``U/min`` and ``1/min``, Hyundai ``Nm``)."""
-_CANONICAL = {"rpm": "rpm", "rad/s": "rpm", "N*m": "N*m"}
+_CANONICAL = {unit: canonical for canonical, units in UNIT_FACTORS.items() for unit in units}
 """The canonical unit (:data:`dtid.dbc.roles.CANONICAL_UNITS`) each map unit converts to."""
 SHOWN = 12
 """Most signals named per unit in a message."""

@@ -66,13 +66,14 @@ from dtid.dbc.roles import (
 )
 from dtid.errors import ConfigError
 
-# Factor from each accepted unit to the canonical unit, per canonical unit.
-_UNIT_FACTORS: Mapping[str, Mapping[str, float]] = MappingProxyType(
+UNIT_FACTORS: Mapping[str, Mapping[str, float]] = MappingProxyType(
     {
         "rpm": MappingProxyType({"rpm": 1.0, "rad/s": 60.0 / (2.0 * math.pi)}),
         "N*m": MappingProxyType({"N*m": 1.0}),
     }
 )
+"""Factor from each unit a map may give (``unit``) to its role's canonical unit, per canonical
+unit."""
 _NAME_KEYS = ("message", "signal")
 
 
@@ -131,7 +132,7 @@ class RoleSpec:
         """Canonical value per unit of decoded signal value (scale times unit conversion)."""
         if self.canonical_unit is None or self.unit is None:
             return self.scale
-        return self.scale * _UNIT_FACTORS[self.canonical_unit][self.unit]
+        return self.scale * UNIT_FACTORS[self.canonical_unit][self.unit]
 
     def extra_signals(self) -> dict[str, str]:
         """Return the further signals the map names, as ``{key: signal name}``."""
@@ -251,7 +252,7 @@ def _parse_role(source: Path, role: str, table: Mapping[str, Any]) -> RoleSpec:
         names[key] = value.strip()
     unit = table.get("unit", canonical)
     if canonical is not None:
-        accepted = _UNIT_FACTORS[canonical]
+        accepted = UNIT_FACTORS[canonical]
         if not isinstance(unit, str) or unit not in accepted:
             raise ConfigError(
                 f"{where} key 'unit' is {unit!r}, which is not a unit this role accepts; "
