@@ -47,9 +47,12 @@ from dtid.identification.search.parameterization import (
     THETA_UNITS,
     Parameterization,
     passenger_car_bounds,
+    theta_from_parameters,
+    theta_to_arrays,
 )
 from dtid.identification.search.runs import amplitude_levels, runs_at, split_runs
 from dtid.identification.search.start_values import start_thetas
+from dtid.identification.uncertainty.comparison import Comparison, point_test
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
 from dtid.identification.uncertainty.statistic import THRESHOLD
 from dtid.identification.uncertainty.target_test import TargetTest, target_test
@@ -96,6 +99,15 @@ class RunSelection:
     def estimates(self) -> list[FrfEstimate]:
         """The analysed runs' FRFs, in order."""
         return [t.estimates[i] for t, runs in zip(self.tests, self.runs, strict=True) for i in runs]
+
+    def objective(self, parameterization: Parameterization) -> Objective:
+        """Eq. (17) over the analysed runs, over the parameterization's free values."""
+        pairs = list(zip(self.tests, self.runs, strict=True))
+        return Objective(
+            parameterization,
+            [t.model_test(runs) for t, runs in pairs],
+            [[t.estimates[i].drv_db for i in runs] for t, runs in pairs],
+        )
 
 
 def cut_time(test_torque: Series, last_end_s: float) -> float:
@@ -282,6 +294,9 @@ class IdentificationReport:
     target_tests
         The likelihood-ratio test at each tested target's ends, by parameter name (empty when
         none was asked for).
+    comparison
+        Another drivetrain tested against the identified one (:meth:`compared`), None when none
+        was given.
     """
 
     identification: Identification
@@ -295,6 +310,7 @@ class IdentificationReport:
     parameterization: Parameterization | None = None
     restart: SearchRestart | None = None
     target_tests: Mapping[str, TargetTest] = dataclasses.field(default_factory=dict)
+    comparison: Comparison | None = None
 
     def validated(self, selection: RunSelection) -> IdentificationReport:
         """The report with the validation NRMSE of the identified parameters on these runs, the
@@ -302,13 +318,7 @@ class IdentificationReport:
         if self.fit is not None:
             variations = {t.name: t.combustion_variation for t in self.fit.tests}
             selection = with_variation(selection, variations)
-        params = self.identification.parameters.as_array()[None]
-        scores = {}
-        for test, runs in zip(selection.tests, selection.runs, strict=True):
-            model = model_drv_db(params, test.model_test(runs))
-            for i, db in zip(runs, model, strict=True):
-                label = test.run_label(i)
-                scores[label] = float(nrmse(test.estimates[i].drv_db, db)[0])
+        scores = run_nrmse(selection, self.identification.parameters.as_array())
         warn_unrepeatable(scores, selection.tests)
         result = dataclasses.replace(self.identification, validation_nrmse=scores)
         return dataclasses.replace(self, identification=result, validation=selection)
@@ -327,15 +337,43 @@ class IdentificationReport:
         """
         if self.fit is None:
             raise ValueError("the report holds no identification runs to score a set on")
-        params = parameters.replace(K=self.gain, T_loss=self.t_loss).as_array()[None]
-        total = 0.0
-        for test, runs in zip(self.fit.tests, self.fit.runs, strict=True):
-            curves = model_drv_db(params, test.model_test(runs))
-            total += sum(
-                float(nrmse(test.estimates[i].drv_db, db)[0])
-                for i, db in zip(runs, curves, strict=True)
-            )
-        return total
+        row = parameters.replace(K=self.gain, T_loss=self.t_loss).as_array()
+        return sum(run_nrmse(self.fit, row).values())
+
+    def compared(self, parameters: DrivetrainParameters, source: str) -> IdentificationReport:
+        """The report with another drivetrain tested against the identified one
+        (:mod:`dtid.identification.uncertainty.comparison`): does it fit the identifying runs
+        significantly worse?
+
+        Parameters
+        ----------
+        parameters
+            The set to test (a data sheet's, an earlier identification's); its K and T_loss and
+            the setup-4 parameters this identification held are replaced by the report's.
+        source
+            Where it came from, for the messages (a file name).
+        """
+        if self.fit is None or self.parameterization is None:
+            raise ValueError("the report holds no identification runs to test a set on")
+        theta = theta_from_parameters(parameters)
+        held = tuple(name for name in THETA_NAMES if name in self.fixed)
+        theta.update({name: self.fixed[name] for name in held})
+        row = theta_to_arrays(
+            np.array([[theta[name] for name in THETA_NAMES]]), self.t_loss, self.gain
+        )[0]
+        par = self.parameterization
+        scores = {"fit": run_nrmse(self.fit, row)}
+        if self.validation is not None:
+            scores["validation"] = run_nrmse(self.validation, row)
+        comparison = Comparison(
+            source=source,
+            theta=theta,
+            held=held,
+            free=len(par.free),
+            test=point_test(self.fit.objective(par), self.identification.unit, row),
+            nrmse=scores,
+        )
+        return dataclasses.replace(self, comparison=comparison)
 
     def fit_curves(self) -> tuple[list[FrfEstimate], list[np.ndarray], list[str]]:
         """Measured FRFs, the identified model's |G_DRV| (dB) and the role of each run (Fig. 6)."""
@@ -482,8 +520,20 @@ class IdentificationReport:
                 for name, prof in self.profiles.items()
             },
             "target_tests": {name: test.as_dict() for name, test in self.target_tests.items()},
+            "comparison": self.comparison.as_dict() if self.comparison else None,
             "curves": self.curves() if self.fit else [],
         }
+
+
+def run_nrmse(selection: RunSelection, row: np.ndarray) -> dict[str, float]:
+    """NRMSE (eq. 16) of one physical parameter array (12,) on each run of a selection, by the
+    run's label, on the model's own realizations."""
+    scores = {}
+    for test, runs in zip(selection.tests, selection.runs, strict=True):
+        model = model_drv_db(row[None], test.model_test(runs))
+        for i, db in zip(runs, model, strict=True):
+            scores[test.run_label(i)] = float(nrmse(test.estimates[i].drv_db, db)[0])
+    return scores
 
 
 def with_variation(selection: RunSelection, variations: Mapping[str, float]) -> RunSelection:
@@ -679,11 +729,7 @@ def identify_runs(
         logger.warning("not identifiable from these data: %s", reason)
     profiles: dict[str, Profile] = {}
     measured_db = [e.drv_db for e in selection.estimates()]
-    objective = Objective(
-        par,
-        [t.model_test(runs) for t, runs in zip(tests, ident, strict=True)],
-        [[t.estimates[i].drv_db for i in runs] for t, runs in zip(tests, ident, strict=True)],
-    )
+    objective = selection.objective(par)
     # the profiles and target tests run on the cheaper objectives of the search's stages 1 and 2
     polish = objective.replacing(realizations=settings.polish_realizations)
     coarse = objective.replacing(realizations=settings.global_realizations)

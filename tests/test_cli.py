@@ -292,6 +292,8 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
         "3",
         "--bounds",
         "c12=150:450",
+        "--compare",
+        str(ROOT / "simulator" / "reference_vehicle.toml"),  # the truth: c12 300, d12 1.0
         "--json",
         str(out),
         "--plot",
@@ -299,7 +301,13 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
     ]
     assert main(argv) == 0
     document = json.loads(out.read_text())
-    validate(document, "identification")  # with intervals and verdicts
+    validate(document, "identification")  # with intervals and verdicts, and the comparison
+    compared = document["comparison"]
+    assert compared["source"].endswith("reference_vehicle.toml")
+    assert compared["degrees_of_freedom"] == 2 and len(compared["held"]) == 8
+    assert compared["draws"] == 99 and compared["critical"] > 0
+    assert compared["theta"]["c12"] == 300.0 and compared["theta"]["eps12"] == 0.02
+    assert not compared["fits_worse"]  # the recording's own vehicle
     assert 150 <= document["parameters"]["c12"] <= 450
     assert all(
         value is None or 150 <= value <= 450 for value in document["intervals"]["c12"].values()
@@ -330,6 +338,25 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
         "m_osc",
     }
     assert plot.stat().st_size > 10_000
+
+
+def test_a_drivetrain_to_compare_is_read_before_the_search(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A --compare file that cannot be read stops the command at once, naming it and what it
+    should hold; an identification JSON is read as one."""
+    missing = tmp_path / "sheet.toml"
+    message = _error(capsys, ["identify", str(recording), "--compare", str(missing)])
+    assert "sheet.toml does not exist" in message
+    typo = tmp_path / "typo.toml"
+    typo.write_text(
+        (ROOT / "simulator" / "reference_vehicle.toml").read_text().replace("c12", "c21")
+    )
+    assert "c21" in _error(capsys, ["identify", str(recording), "--compare", str(typo)])
+    other = tmp_path / "other.json"
+    other.write_text('{"plan": []}')
+    message = _error(capsys, ["identify", str(recording), "--compare", str(other)])
+    assert "--compare" in message and "not an identification JSON" in message
 
 
 def test_a_mean_torque_in_per_cent_is_named_by_its_k(

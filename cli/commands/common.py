@@ -16,6 +16,7 @@ from dtid.acquisition.clock import MAX_TIME_FACTOR
 from dtid.acquisition.logfile import SUPPORTED_SUFFIXES
 from dtid.acquisition.metadata import sidecar_path
 from dtid.errors import ConfigError
+from dtid.simulator.parameters import NAMES, DrivetrainParameters, load_parameters, parse_parameters
 from dtid.simulator.vehicle_data import (
     VehicleData,
     load_vehicle_data,
@@ -215,6 +216,26 @@ def read_identification(path: Path, option: str = "--identification") -> dict:
             "the file `dtid identify --json` wrote"
         )
     return document
+
+
+def is_identification(path: Path) -> bool:
+    """Whether a parameter option names an identification's JSON (else a parameter TOML)."""
+    return path.suffix.lower() == ".json"
+
+
+def read_parameter_set(path: Path, option: str) -> tuple[DrivetrainParameters, dict | None]:
+    """The drivetrain given by ``option``: a parameter TOML (its top level, or a vehicle file's
+    ``[drivetrain]``) or an identification JSON (its parameters and T_loss), and the JSON's
+    document (None for a TOML)."""
+    if not is_identification(path):
+        return load_parameters(path), None
+    document = read_identification(path, option)
+    table = {name: document["parameters"].get(name) for name in NAMES}
+    table["T_loss"] = document.get("T_loss")
+    missing = [name for name, value in table.items() if not isinstance(value, int | float)]
+    if missing:
+        raise ConfigError(f"{option} {path}: the identification has no {missing[0]!r}")
+    return parse_parameters(table, str(path)), document
 
 
 class ProgressBar:

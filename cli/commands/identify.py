@@ -24,6 +24,7 @@ from dtid.cli.commands.common import (
     output_file,
     plot_file,
     positive_float,
+    read_parameter_set,
     seed,
     vehicle_data,
 )
@@ -59,6 +60,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     add_bounds_options(parser)
     add_vehicle_option(parser)
     add_search_options(parser)
+    parser.add_argument(
+        "--compare",
+        type=Path,
+        metavar="FILE",
+        help="a drivetrain to test against the identified one (a data sheet's, the design's, an "
+        "earlier identification's): a parameter TOML as --prior takes or an identification "
+        "JSON; says whether these recordings reject it",
+    )
     parser.add_argument("--json", type=output_file, help="write the result as JSON")
     parser.add_argument(
         "--plot", type=plot_file, help="overlay measured and identified FRFs (Fig. 6)"
@@ -336,6 +345,7 @@ def run(args: argparse.Namespace) -> int:
     fixed, bounds = fixed_and_bounds(args)
     settings = search_settings(args)
     prior = load_parameters(args.prior) if args.prior else reference_parameters()
+    compared = read_parameter_set(args.compare, "--compare")[0] if args.compare else None
     vehicle = vehicle_data(args)
     bar = ProgressBar()
     report = identify(
@@ -353,8 +363,12 @@ def run(args: argparse.Namespace) -> int:
         progress=bar,
     )
     bar.finish()
+    if compared is not None:
+        report = report.compared(compared, str(args.compare))
     print_report(report.as_dict(), fixed, follow_up_command(args))
     print(vehicle.describe())
+    if report.comparison is not None:
+        print(report.comparison.sentence())
     if args.json:
         report.to_json(args.json)
     if args.plot:

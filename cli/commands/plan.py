@@ -16,11 +16,13 @@ from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
     at_most,
+    is_identification,
     non_negative_float,
     output_file,
     plot_file,
     positive_float,
     read_identification,
+    read_parameter_set,
     vehicle_data,
 )
 from dtid.errors import ConfigError
@@ -46,10 +48,7 @@ from dtid.identification.planning.spread import (
 from dtid.jsonfile import write_json
 from dtid.simulator.controller import IdleController
 from dtid.simulator.parameters import (
-    NAMES,
     DrivetrainParameters,
-    load_parameters,
-    parse_parameters,
     reference_parameters,
 )
 from dtid.simulator.simulate import SimulationOptions
@@ -167,15 +166,8 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
     """The parameters of --prior: a parameter TOML or an identification JSON."""
     if path is None:
         return reference_parameters()
-    if not _is_identification(path):
-        return load_parameters(path)
-    document = read_identification(path, "--prior")
-    table = {name: document["parameters"].get(name) for name in NAMES}
-    table["T_loss"] = document.get("T_loss")
-    missing = [name for name, value in table.items() if not isinstance(value, int | float)]
-    if missing:
-        raise ConfigError(f"--prior {path}: the identification has no {missing[0]!r}")
-    edges = document.get("at_bounds") or {}
+    prior, document = read_parameter_set(path, "--prior")
+    edges = (document or {}).get("at_bounds") or {}
     if edges:
         logger.warning(
             "--prior %s: %s ended on an edge of the identification's search box; the plan is "
@@ -184,20 +176,15 @@ def read_prior(path: Path | None) -> DrivetrainParameters:
             path,
             ", ".join(f"{name} ({edge['side']})" for name, edge in edges.items()),
         )
-    return parse_parameters(table, str(path))
+    return prior
 
 
 def planned_vehicle(args: argparse.Namespace) -> VehicleData:
     """The model's vehicle data: ``--vehicle``'s, else those the ``--prior`` identification was
     made with, else the reference's (:func:`dtid.cli.commands.common.vehicle_data`)."""
-    if args.prior is not None and _is_identification(args.prior):
+    if args.prior is not None and is_identification(args.prior):
         return vehicle_data(args, (args.prior, read_identification(args.prior, "--prior")))
     return vehicle_data(args)
-
-
-def _is_identification(path: Path) -> bool:
-    """Whether --prior names an identification's JSON (else a parameter TOML)."""
-    return path.suffix.lower() == ".json"
 
 
 def recorded_runs(args: argparse.Namespace) -> tuple[list[Design], list[float], float | None]:
@@ -215,7 +202,7 @@ def recorded_identification(args: argparse.Namespace) -> dict | None:
     intervals then confirm the targets the prediction says are met:
     :mod:`dtid.identification.planning.confirmation`); None otherwise, with a note when it was
     made of other recordings."""
-    if not args.after or args.prior is None or not _is_identification(args.prior):
+    if not args.after or args.prior is None or not is_identification(args.prior):
         return None
     document = read_identification(args.prior, "--prior")
     made_of = set(document.get("combustion_variation") or {})  # the identifying recordings
@@ -239,7 +226,7 @@ def recorded_identification(args: argparse.Namespace) -> dict | None:
 def planned_spread(args: argparse.Namespace) -> float | str:
     """--spread as :func:`dtid.identification.planning.design.plan_test` takes it: a relative
     half-width or ``recorded``, with the defaults the option's help gives."""
-    guessed = args.prior is None or not _is_identification(args.prior)
+    guessed = args.prior is None or not is_identification(args.prior)
     value = args.spread
     if value is None:
         if guessed:
