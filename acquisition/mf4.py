@@ -19,15 +19,14 @@ MDF 4 provides for it: an ``HDcomment`` XML whose ``common_properties`` hold one
 
 from __future__ import annotations
 
-import contextlib
 import gc
 import json
 import logging
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable
 from datetime import UTC, datetime
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, TypeVar
 from xml.etree import ElementTree
 
 import can
@@ -36,6 +35,8 @@ from asammdf import MDF
 from can.io.mf4 import STD_DTYPE, MF4Reader, MF4Writer
 
 from dtid.errors import RecordingError
+
+T = TypeVar("T")
 
 BLOCK_FRAMES = 8192
 """Data frames buffered before they are appended to the file's data group."""
@@ -119,12 +120,16 @@ def frame_count(path: str | os.PathLike[str]) -> int:
     RecordingError
         If the file is not a readable MDF 4 file.
     """
-    with _reading(path), MDF(path) as mdf:
-        return sum(
-            group.channel_group.cycles_nr
-            for group in mdf.groups
-            if any(str(c.name).startswith(_FRAME_GROUPS) for c in group.channels)
-        )
+
+    def count() -> int:
+        with MDF(path) as mdf:
+            return sum(
+                group.channel_group.cycles_nr
+                for group in mdf.groups
+                if any(str(c.name).startswith(_FRAME_GROUPS) for c in group.channels)
+            )
+
+    return _reading(path, count)
 
 
 def header_comment(metadata: dict[str, Any]) -> str:
@@ -158,9 +163,12 @@ def read_mf4(path: os.PathLike[str]) -> tuple[list[can.Message], dict[str, Any] 
     RecordingError
         If the file is not a readable MDF 4 file.
     """
-    with _reading(path), MF4Reader(path) as reader:
-        comment = reader._mdf.header.comment  # python-can offers no accessor
-        frames = list(reader)
+
+    def read() -> tuple[list[can.Message], str]:
+        with MF4Reader(path) as reader:
+            return list(reader), reader._mdf.header.comment  # python-can offers no accessor
+
+    frames, comment = _reading(path, read)
     return frames, parse_header_comment(comment)
 
 
@@ -172,33 +180,36 @@ def read_mf4_metadata(path: os.PathLike[str]) -> dict[str, Any] | None:
     RecordingError
         If the file is not a readable MDF 4 file.
     """
-    with _reading(path), MDF(path) as mdf:
-        comment = mdf.header.comment
-    return parse_header_comment(comment)
+
+    def read() -> str:
+        with MDF(path) as mdf:
+            return mdf.header.comment
+
+    return parse_header_comment(_reading(path, read))
 
 
-@contextlib.contextmanager
-def _reading(path: os.PathLike[str]) -> Iterator[None]:
-    """Turn asammdf's failure on a damaged file into one RecordingError, without the traceback
-    asammdf logs and the ``__del__`` complaints of its half-built objects."""
+def _reading(path: os.PathLike[str], read: Callable[[], T]) -> T:
+    """``read()`` of an .mf4 file, asammdf's failure on a damaged file turned into one
+    RecordingError, without the traceback asammdf logs and the ``__del__`` complaints of its
+    half-built objects (collected here, while they are muted; the error is raised outside the
+    handler, so that it does not hold them in its context)."""
     quiet = logging.getLogger("asammdf")
     was_disabled, hook = quiet.disabled, sys.unraisablehook
     quiet.disabled, sys.unraisablehook = True, lambda unraisable: None
     reason = None
     try:
-        yield
-    except Exception as error:  # asammdf raises many kinds on a damaged file
-        reason = " ".join(str(error).split()) or type(error).__name__
-        del error
-        gc.collect()  # the half-built objects go now, while their complaints are muted
+        try:
+            return read()
+        except Exception as error:  # asammdf raises many kinds on a damaged file
+            reason = " ".join(str(error).split()) or type(error).__name__
+        gc.collect()
     finally:
         quiet.disabled, sys.unraisablehook = was_disabled, hook
-    if reason is not None:
-        raise RecordingError(
-            f"recording {path} is not a readable MF4 file ({reason}); an MF4 file is written "
-            "whole when its recording ends, so a cut or damaged one cannot be read in part: use "
-            "the logger's own repair tool, or the session's BLF journal when dtid recorded it"
-        )
+    raise RecordingError(
+        f"recording {path} is not a readable MF4 file ({reason}); an MF4 file is written "
+        "whole when its recording ends, so a cut or damaged one cannot be read in part: use "
+        "the logger's own repair tool, or the session's BLF journal when dtid recorded it"
+    )
 
 
 def parse_header_comment(comment: str) -> dict[str, Any] | None:

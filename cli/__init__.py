@@ -52,12 +52,24 @@ def build_parser() -> argparse.ArgumentParser:
         prog="dtid",
         description="Chirp-test drivetrain identification over CAN (drivetrain-id).",
     )
-    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log more detail")
+    add_global_options(parser, False)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in command_modules():
         command.add_parser(subparsers)
+    for subparser in subparsers.choices.values():  # `dtid identify REC --debug` too
+        add_global_options(subparser, argparse.SUPPRESS)
     return parser
+
+
+def add_global_options(parser: argparse.ArgumentParser, default: object) -> None:
+    """``--debug`` and ``-v``, before the command or after it (``default`` SUPPRESS there, so
+    that the command's parser leaves what was given before it)."""
+    parser.add_argument(
+        "--debug", action="store_true", default=default, help="show tracebacks of errors"
+    )
+    parser.add_argument(
+        "-v", "--verbose", action="store_true", default=default, help="log more detail"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -73,6 +85,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         stream=sys.stderr,
     )
     try:
+        from dtid.cli.commands.common import check_written_over
+
+        check_written_over(args)
         return int(args.run(args) or 0)
     except DtidError as error:
         if args.debug:

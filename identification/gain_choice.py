@@ -111,14 +111,19 @@ def gain_warning(gain: float) -> str | None:
     low, high = PLAUSIBLE_GAIN
     if low <= gain <= high:
         return None
-    return (
+    message = (
         f"K {gain:.3g}: the engine delivers {100 * gain:.0f} % of the torque its ECU requests, "
         "where a calibrated engine delivers about 100 %: the mean torque and the torque request "
         "are most likely in different units or scales (a torque in per cent of a reference "
         "torque needs the map's `scale`: docs/vehicle.md). If it is the mean torque's, the "
         "inertias and stiffnesses identified carry that factor too (|G_DRV| divides the speed "
-        "by the mean torque). A K this low can also be an engine lagging its request by a "
-        "tenth of a second or more, which `dtid diagnose` names (torque_lag)"
+        "by the mean torque)"
+    )
+    if gain > high:
+        return message
+    return (
+        f"{message}. A K this low can also be an engine lagging its request by a tenth of a "
+        "second or more, which `dtid diagnose` names (torque_lag)"
     )
 
 

@@ -412,6 +412,7 @@ def parse_effect(text: str) -> dict[str, float]:
         )
     values = {p.name: p.neutral for p in mechanism.parameters[1:]}
     values[mechanism.main.name] = 0.5 * sum(mechanism.main.typical)
+    given: set[str] = set()
     for item in filter(None, (part.strip() for part in rest.split(","))):
         key, sep, value = item.partition("=")
         if not sep or key.strip() not in mechanism.names():
@@ -419,6 +420,9 @@ def parse_effect(text: str) -> dict[str, float]:
                 f"--effect {text!r}: {item!r} is not k=v with k one of "
                 f"{', '.join(mechanism.names())}"
             )
+        if key.strip() in given:
+            raise ConfigError(f"--effect {text!r} gives {key.strip()} twice: give it once")
+        given.add(key.strip())
         try:
             values[key.strip()] = float(value)
         except ValueError:

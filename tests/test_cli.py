@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import io
 import json
 import shutil
@@ -13,6 +14,9 @@ from json_schemas import validate
 
 from dtid.cli import main
 from dtid.cli.commands.common import ProgressBar
+from dtid.cli.commands.identify import follow_up_command, unprofiled_note
+from dtid.errors import RecordingError
+from dtid.identification.gain_choice import gain_warning
 
 DATA = Path(__file__).parent / "data"
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,15 +89,50 @@ def test_identify_names_an_engine_that_lags_its_request(
         assert lag["gain"] == pytest.approx(0.9, rel=0.2)
     assert "the engine lags its torque request" in caplog.text
     assert "dtid diagnose` fits the lag" in caplog.text
-    printed = capsys.readouterr().out  # without profiles, the report says what it lacks
-    assert "no intervals (--profile-points 0)" in printed
-    assert f"predicted by dtid plan --prior {out} --after {recording}" in printed
+    printed = capsys.readouterr().out  # every parameter held: no intervals to miss
+    assert "no intervals" not in printed
     frf = tmp_path / "frf.json"  # the FRF's own page says it per run too
     assert main(["frf", str(recording), "--json", str(frf)]) == 0
     assert "engine lag 0.0" in capsys.readouterr().out
     runs = json.loads(frf.read_text())["runs"]
     validate({"runs": runs}, "frf")
     assert [run["engine_lag"]["tau_s"] for run in runs] == pytest.approx([0.06, 0.06], rel=0.15)
+
+
+def test_a_result_without_profiles_says_what_it_lacks_and_the_command_that_predicts_it() -> None:
+    """With --profile-points 0 the report names what it lacks and the `dtid plan` command that
+    predicts the precision; without --json that command needs the result written first, and
+    the sentence says so (it read "predicted by write this result with --json ...")."""
+    args = argparse.Namespace(
+        json=None, recordings=[Path("r.blf")], dbc=Path("v.dbc"), signals=None, vehicle=None
+    )
+    note = unprofiled_note(follow_up_command(args))
+    assert note.startswith("no intervals (--profile-points 0)")
+    assert note.endswith(
+        "predicted by dtid plan --prior ID.json --after r.blf --dbc v.dbc (with this result "
+        "written by --json ID.json)"
+    )
+    args.json = Path("id.json")
+    assert follow_up_command(args) == "dtid plan --prior id.json --after r.blf --dbc v.dbc"
+
+
+def test_the_global_options_may_follow_the_command(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`dtid inspect X --debug` was refused as an unknown argument; before the command or after
+    it, --debug shows the traceback of an error and -v logs more."""
+    with pytest.raises(RecordingError):
+        main(["inspect", str(recording.with_name("absent.blf")), "--debug"])
+    assert main(["inspect", str(recording), "-v"]) == 0
+    assert "error" not in capsys.readouterr().err
+
+
+def test_frf_refuses_a_band_upside_down_and_a_recording_twice(
+    recording: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    message = _error(capsys, ["frf", str(recording), "--band", "12", "3"])
+    assert "give the lower frequency first" in message
+    assert "given twice" in _error(capsys, ["frf", str(recording), str(recording)])
 
 
 @pytest.mark.slow  # two searches of the paper's 60 s chirps (31 s)
@@ -359,6 +398,14 @@ def test_a_drivetrain_to_compare_is_read_before_the_search(
     assert "--compare" in message and "not an identification JSON" in message
 
 
+def test_a_k_far_above_one_is_not_read_as_a_lagging_engine() -> None:
+    """A lag lowers eq. (24)'s K; a K of 4 (a torque map's scale too large) is a unit matter
+    only, and the warning no longer calls it low."""
+    assert "this low" in (gain_warning(0.2) or "") and "torque_lag" in (gain_warning(0.2) or "")
+    high = gain_warning(4.04) or ""
+    assert "different units or scales" in high and "this low" not in high
+
+
 def test_a_mean_torque_in_per_cent_is_named_by_its_k(
     recording: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -515,6 +562,9 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
         assert "expected NAME=LOWER:UPPER" in message, bad
     message = _error(capsys, ["identify", str(recording), "--bounds", "c12=600:100"])
     assert "bounds of c12 must satisfy 0 <= lower < upper" in message
+    for points in ("1", "2"):  # half-open intervals of every parameter, called verdicts
+        message = _error(capsys, ["identify", str(recording), "--profile-points", points])
+        assert "must be 0 (no profiles) or at least 3" in message
     with pytest.raises(SystemExit) as status:  # argparse's own usage error
         main(["identify", str(recording), "--span", "0"])
     assert status.value.code == 2 and "must be a number > 0" in capsys.readouterr().err
@@ -545,6 +595,8 @@ def test_identify_rejects_bad_bounds(recording: Path, capsys: pytest.CaptureFixt
         (["vehicle", "--speedup", "1e9"], "1e9 is above 20"),  # Ctrl-C could not stop it
         (["monitor", "--refresh", "3e6"], "3e6 s is above 10 s"),  # ZeroMQ's poll overflowed
         (["plan", "--max-time", "7200"], "7200 s is above 3600 s"),  # its plan, refused at the end
+        (["identify", "REC", "--json", "/proc/result.json"], "cannot write /proc/result.json"),
+        (["diagnose", "REC", "--json", "/proc/d.json"], "cannot write /proc/d.json"),
     ],
 )
 def test_an_output_nowhere_to_write_is_refused_before_the_work(
@@ -567,6 +619,38 @@ def test_an_output_nowhere_to_write_is_refused_before_the_work(
     assert status.value.code == 2 and why in capsys.readouterr().err
     assert not (tmp_path / "missing").exists()
     assert recording.read_bytes() == before
+
+
+@pytest.mark.parametrize(
+    ("command", "why"),
+    [
+        (["identify", "REC", "--dbc", "DBC", "--json", "DBC"], "read by this command (--dbc)"),
+        (["diagnose", "REC", "--identification", "ID", "--json", "ID"], "(--identification)"),
+        (["plan", "--prior", "ID", "--json", "ID"], "read by this command (--prior)"),
+        (["identify", "REC", "--json", "fit.png", "--plot", "fit.png"], "given to both"),
+    ],
+)
+def test_a_result_is_not_written_over_what_the_command_reads(
+    command: list[str],
+    why: str,
+    recording: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """`dtid diagnose REC --identification id.json --json id.json` replaced the identification
+    by the diagnosis, `dtid identify --dbc my.dbc --json my.dbc` the DBC by the result, and
+    `--json fit.png --plot fit.png` the JSON by the figure; now each is refused before any
+    work, and the file is left as it was."""
+    dbc, identification = tmp_path / "vehicle.dbc", tmp_path / "id.json"
+    dbc.write_bytes((ROOT / "dbc" / "drivetrain.dbc").read_bytes())
+    identification.write_text('{"parameters": {}}')
+    before = {path: path.read_bytes() for path in (dbc, identification)}
+    words = {"REC": str(recording), "DBC": str(dbc), "ID": str(identification)}
+    argv = [words.get(word, word) for word in command]
+    argv = [str(tmp_path / word) if word == "fit.png" else word for word in argv]
+    assert why in _error(capsys, argv)
+    assert {path: path.read_bytes() for path in before} == before
+    assert not (tmp_path / "fit.png").exists()
 
 
 @pytest.mark.parametrize(

@@ -283,6 +283,7 @@ def test_effect_options_parse_and_refuse_clearly():
         ("rattle", "unknown mechanism"),
         ("gearbox_drag:c12=3", "is not k=v"),
         ("gearbox_drag:d3=x", "not a number"),
+        ("gearbox_drag:d3=0.01,d3=0.02", "gives d3 twice"),  # the last one was taken
     ):
         with pytest.raises(ConfigError, match=message):
             parse_effect(text)
@@ -297,3 +298,6 @@ def test_simulate_conceals_an_effect_and_refuses_an_unknown_one(tmp_path, capsys
     assert path.stat().st_size > 0
     assert dtid([*command, "--force", "--effect", "rattle"]) == 2
     assert "unknown mechanism 'rattle'" in capsys.readouterr().err
+    twice = ["--effect", "gearbox_drag:d3=0.01", "--effect", "gearbox_drag:d3=0.02"]
+    assert dtid([*command, "--force", *twice]) == 2
+    assert "--effect gearbox_drag is given more than once" in capsys.readouterr().err

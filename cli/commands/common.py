@@ -148,13 +148,20 @@ def _finite_float(text: str, positive: bool) -> float:
     return value
 
 
-def new_file(text: str) -> Path:
+class OutputPath(type(Path())):  # type: ignore[misc]  # Path's concrete class (PosixPath)
+    """A file the command writes (:func:`new_file`), told from the files it reads by
+    :func:`check_written_over`."""
+
+
+def new_file(text: str) -> OutputPath:
     """argparse type: a file the command writes, in a folder that exists and takes files.
 
-    Checked when the command is read, so that a mistyped or missing folder is named before
-    minutes of identification, not after them (the result was then lost).
+    Checked when the command is read, so that a mistyped or missing folder, or one that takes
+    no new files (``/proc``, a full or read-only file system), is named before minutes of
+    identification, not after them (the result was then lost). A file that does not exist yet
+    is created and removed to find out.
     """
-    path = Path(text)
+    path = OutputPath(text)
     if path.is_dir():
         raise argparse.ArgumentTypeError(f"{text} is a folder: give a file name in it")
     folder = path.parent
@@ -164,10 +171,53 @@ def new_file(text: str) -> Path:
         )
     if not os.access(folder, os.W_OK | os.X_OK):
         raise argparse.ArgumentTypeError(f"cannot write {text}: the folder {folder} is read-only")
+    if not path.exists():
+        try:
+            path.touch(exist_ok=False)
+            path.unlink()
+        except OSError as error:
+            raise argparse.ArgumentTypeError(
+                f"cannot write {text}: {error.strerror or error}"
+            ) from None
     return path
 
 
-def output_file(text: str) -> Path:
+def check_written_over(args: argparse.Namespace) -> None:
+    """Refuse a command that would write over a file it reads (an identification, a DBC, a
+    plan, a parameter file) or write two results to one file: nothing a user gave is lost.
+
+    Raises
+    ------
+    ConfigError
+        Naming the file and the two options.
+    """
+    read: dict[Path, str] = {}
+    written: dict[Path, str] = {}
+    for dest, value in vars(args).items():
+        for path in value if isinstance(value, list) else [value]:
+            if not isinstance(path, Path):
+                continue
+            option = "RECORDING" if dest in ("recordings", "tests") else f"--{dest}"
+            option = option.replace("_", "-")
+            resolved = path.resolve()
+            if not isinstance(path, OutputPath):
+                read.setdefault(resolved, option)
+            elif resolved in written:
+                raise ConfigError(
+                    f"{path} is given to both {written[resolved]} and {option}: one result "
+                    "would be written over the other; give each its own file"
+                )
+            else:
+                written[resolved] = option
+    for resolved, option in written.items():
+        if resolved in read:
+            raise ConfigError(
+                f"{resolved} is read by this command ({read[resolved]}) and would be written "
+                f"over by {option}: give the result another name"
+            )
+
+
+def output_file(text: str) -> OutputPath:
     """argparse type: a result file (:func:`new_file`) that is neither a CAN recording nor a
     recording's metadata: nothing a user recorded is written over."""
     path = new_file(text)
@@ -188,7 +238,7 @@ def output_file(text: str) -> Path:
     return path
 
 
-def plot_file(text: str) -> Path:
+def plot_file(text: str) -> OutputPath:
     """argparse type: a figure (:func:`output_file`) in a format matplotlib writes."""
     from matplotlib.backend_bases import FigureCanvasBase
 

@@ -9,6 +9,7 @@ import numpy as np
 
 from dtid.cli.commands.common import add_interface_options, output_file, plot_file, positive_float
 from dtid.dbc.loader import load_interface
+from dtid.errors import ConfigError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate
 from dtid.identification.samples.recording import load_recording
 from dtid.jsonfile import write_json
@@ -48,6 +49,15 @@ def estimate_all(
     recordings: list[Path], args: argparse.Namespace
 ) -> list[tuple[Path, FrfEstimate]]:
     """FRFs of every chirp run of every recording, in order."""
+    seen: set[Path] = set()
+    for path in recordings:
+        if path.resolve() in seen:
+            raise ConfigError(f"{path} is given twice: give each recording once")
+        seen.add(path.resolve())
+    if args.band and args.band[0] >= args.band[1]:
+        raise ConfigError(
+            f"--band {args.band[0]:g} {args.band[1]:g}: give the lower frequency first (F1 < F2)"
+        )
     interface = load_interface(args.dbc, args.signals)
     band = tuple(args.band) if args.band else None
     return [

@@ -37,7 +37,8 @@ from dtid.identification.search.parameterization import (
     THETA_NAMES,
     check_theta_value,
 )
-from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.identification.uncertainty.profile import MIN_POINTS
+from dtid.simulator.parameters import reference_parameters
 from dtid.workflow import identify
 
 
@@ -92,8 +93,8 @@ def add_bounds_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--prior",
         type=Path,
-        help="parameter set (TOML: the keys at its top level or in a vehicle file's [drivetrain]) "
-        "the bounds centre on (default: the reference vehicle)",
+        help="parameter set the bounds centre on: a TOML (the keys at its top level or in a "
+        "vehicle file's [drivetrain]) or an identification JSON (default: the reference vehicle)",
     )
     parser.add_argument(
         "--span",
@@ -175,8 +176,11 @@ def search_settings(args: argparse.Namespace) -> SearchSettings:
     for option in ("generations", "popsize", "polish_evaluations"):
         if getattr(args, option) < 1:
             raise ConfigError(f"--{option.replace('_', '-')} must be at least 1")
-    if args.profile_points < 0:
-        raise ConfigError("--profile-points must be 0 (no profiles) or more")
+    if args.profile_points < 0 or 0 < args.profile_points < MIN_POINTS:
+        raise ConfigError(
+            f"--profile-points must be 0 (no profiles) or at least {MIN_POINTS} (a profile's "
+            "minimum and a point on each side)"
+        )
     settings = SearchSettings(
         popsize=args.popsize,
         generations=args.generations,
@@ -214,8 +218,13 @@ def print_report(
         print(f"wider than dtid plan's default targets (95 % interval, % of the value): {wide}")
         if follow_up:
             print(f"the follow-up test that reaches them: {follow_up}")
-    elif not (document["intervals"] or document.get("profiles") or document.get("target_tests")):
-        print(unprofiled_note(follow_up))  # a campaign round's target tests say what it reaches
+    elif not (
+        document["intervals"]
+        or document.get("profiles")
+        or document.get("target_tests")  # a campaign round's target tests say what it reaches
+        or set(THETA_NAMES) <= set(fixed)  # nothing searched
+    ):
+        print(unprofiled_note(follow_up))
     for role, values in document["nrmse"].items():
         for label, value in values.items():
             print(f"NRMSE {role:<10} {label}: {value:.3f}")
@@ -289,15 +298,13 @@ def wide_intervals(document: Mapping[str, Any]) -> str:
 
 def follow_up_command(args: argparse.Namespace) -> str:
     """The ``dtid plan`` command that plans a follow-up to these recordings at this result."""
-    if not args.json:
-        return "write this result with --json ID.json, then dtid plan --prior ID.json --after " + (
-            " ".join(str(r) for r in args.recordings)
-        )
-    words = ["dtid plan", "--prior", str(args.json), "--after", *map(str, args.recordings)]
+    result = str(args.json) if args.json else "ID.json"
+    words = ["dtid plan", "--prior", result, "--after", *map(str, args.recordings)]
     for option in ("dbc", "signals", "vehicle"):
         if getattr(args, option, None):
             words += [f"--{option}", str(getattr(args, option))]
-    return " ".join(words)
+    command = " ".join(words)
+    return command if args.json else f"{command} (with this result written by --json ID.json)"
 
 
 def parse_fixed(items: list[str]) -> dict[str, float]:
@@ -344,7 +351,7 @@ def run(args: argparse.Namespace) -> int:
     """Identify, print the result, write JSON and plot as asked."""
     fixed, bounds = fixed_and_bounds(args)
     settings = search_settings(args)
-    prior = load_parameters(args.prior) if args.prior else reference_parameters()
+    prior = read_parameter_set(args.prior, "--prior")[0] if args.prior else reference_parameters()
     compared = read_parameter_set(args.compare, "--compare")[0] if args.compare else None
     vehicle = vehicle_data(args)
     bar = ProgressBar()

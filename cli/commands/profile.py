@@ -15,6 +15,7 @@ from dtid.cli.commands.common import (
     add_vehicle_option,
     output_file,
     plot_file,
+    read_parameter_set,
     seed,
     vehicle_data,
 )
@@ -22,8 +23,9 @@ from dtid.cli.commands.identify import add_bounds_options, fixed_and_bounds
 from dtid.errors import ConfigError
 from dtid.identification.pipeline import run_identification
 from dtid.identification.setups import profile_setup, setup
+from dtid.identification.uncertainty.profile import MIN_POINTS
 from dtid.jsonfile import write_json
-from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.simulator.parameters import reference_parameters
 from dtid.workflow import measured_tests
 
 
@@ -53,8 +55,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("give --setup 1..4 (the paper's plant) or recordings to profile")
     if args.setup is not None and args.recordings:
         raise ConfigError("give either --setup 1..4 or recordings to profile, not both")
-    if args.points < 3:
-        raise ConfigError("--points must be at least 3")
+    if args.points < MIN_POINTS:
+        raise ConfigError(f"--points must be at least {MIN_POINTS}")
     if args.setup is not None:
         profiles = profile_setup(setup(args.setup), points=args.points, seed=args.seed)
         title = f"Setup {args.setup}"
@@ -63,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle_data(args))
         report = run_identification(
             tests,
-            load_parameters(args.prior) if args.prior else reference_parameters(),
+            read_parameter_set(args.prior, "--prior")[0] if args.prior else reference_parameters(),
             fixed=fixed,
             bounds=bounds,
             span=None if args.span is None else args.span / 100,

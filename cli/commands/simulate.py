@@ -121,6 +121,13 @@ def run(args: argparse.Namespace) -> int:
             duration_s=args.duration,
         )
     controller = IdleController(setpoint_rpm=args.setpoint)
+    named = [text.partition(":")[0].strip() for text in args.effect]
+    again = sorted({name for name in named if named.count(name) > 1})
+    if again:
+        raise ConfigError(
+            f"--effect {again[0]} is given more than once: give each mechanism once, its "
+            "parameters together (NAME:k=v,k=v)"
+        )
     effects = Effects({k: v for text in args.effect for k, v in parse_effect(text).items()})
     options = (
         SimulationOptions.clean(controller=controller, effects=effects)

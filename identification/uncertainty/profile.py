@@ -118,6 +118,10 @@ around truths of 250, 1.0 and 0.05 (the other parameters compensating, c12's pro
 0.037 over its grid); docs/accuracy.md has the calibration with the rule so scoped."""
 
 
+MIN_POINTS = 3
+"""Fewest grid points of a profile: its minimum and a point on each side."""
+
+
 @dataclass(frozen=True)
 class Profile:
     """The profile of one parameter.
