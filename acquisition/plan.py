@@ -218,6 +218,15 @@ def plan_from_file(path: str | Path, request_period_s: float = 0.01) -> TestPlan
     return plan_from_document(document, f"plan file {path}", request_period_s)
 
 
+def planned_setpoint(path: str | Path) -> float | None:
+    """The idle speed a ``dtid plan --json`` file's prediction assumed (its plan's
+    ``setpoint_rpm``), rpm; None where it names none. The file is read by :func:`plan_from_file`
+    first, which names what is wrong with it."""
+    entry = json.loads(Path(path).read_text()).get("plan") or {}
+    value = entry.get("setpoint_rpm")
+    return float(value) if isinstance(value, int | float) else None
+
+
 def plan_from_document(document: object, where: str, request_period_s: float = 0.01) -> TestPlan:
     """The test plan of a ``dtid plan --json`` document (its ``plan`` entry); ``where`` names
     the document in messages.

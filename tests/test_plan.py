@@ -331,13 +331,25 @@ def test_the_daemon_configuration_runs_a_plan_file(tmp_path: Path) -> None:
         plan_from_file(tmp_path / "bad.json")
 
 
-def test_dtid_simulate_records_the_planned_test(tmp_path: Path) -> None:
-    recording = tmp_path / "planned.blf"
-    assert main(["simulate", str(recording), "--plan", str(_plan_file(tmp_path))]) == 0
+def test_dtid_simulate_records_the_planned_test(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """The plan's runs, and a note where the simulated vehicle idles elsewhere than the plan's
+    prediction assumed (`dtid plan --setpoint 700` simulated at 1000 rpm without a word)."""
+    recording, plan = tmp_path / "planned.blf", _plan_file(tmp_path)
+    assert main(["simulate", str(recording), "--plan", str(plan)]) == 0
+    assert "was planned for" not in capsys.readouterr().out  # at its 1000 rpm
     runs = find_runs(read_recording(recording).test_data().test_torque)
     assert [round(r.amplitude_nm) for r in runs] == [3, 10, 3, 2]
     assert all(abs(r.duration_s - 30.0) < 0.2 for r in runs)
     assert main(["simulate", str(tmp_path / "x.blf"), "--plan", "p.json", "--f1", "2"]) == 2
+    document = json.loads(plan.read_text())
+    document["plan"]["setpoint_rpm"] = 700.0
+    plan.write_text(json.dumps(document))
+    assert main(["simulate", str(recording), "--force", "--plan", str(plan)]) == 0
+    printed = capsys.readouterr().out
+    assert "planned for a vehicle idling at 700 rpm; this one idles at 1000 rpm" in printed
+    assert "--setpoint 700 simulates the vehicle it was planned for" in printed
 
 
 def test_dtid_plan_writes_its_contract(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

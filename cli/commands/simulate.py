@@ -8,7 +8,7 @@ from pathlib import Path
 
 from dtid.acquisition.logfile import write_log
 from dtid.acquisition.metadata import session_metadata
-from dtid.acquisition.plan import TestPlan, plan_from_file
+from dtid.acquisition.plan import TestPlan, plan_from_file, planned_setpoint
 from dtid.cli.commands.common import (
     add_interface_options,
     add_vehicle_option,
@@ -95,6 +95,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(run=run)
 
 
+SETPOINT_TOLERANCE = 0.05
+"""A plan's idle speed and the simulated vehicle's differing by more than this share are
+named: the plan's precision was predicted at its own idle speed."""
+
+
 def run(args: argparse.Namespace) -> int:
     """Simulate and write the recording."""
     parameters = load_parameters(args.params) if args.params else reference_parameters()
@@ -112,6 +117,13 @@ def run(args: argparse.Namespace) -> int:
         if given:
             raise ConfigError(f"{given[0]} and --plan both set the test: give one of them")
         plan = plan_from_file(args.plan)
+        planned = planned_setpoint(args.plan)
+        if planned is not None and abs(planned - args.setpoint) > SETPOINT_TOLERANCE * planned:
+            print(
+                f"note: {args.plan} was planned for a vehicle idling at {planned:g} rpm; this "
+                f"one idles at {args.setpoint:g} rpm (--setpoint {planned:g} simulates the "
+                "vehicle it was planned for)"
+            )
     else:
         plan = TestPlan(
             amplitudes_nm=tuple(args.amplitudes),
