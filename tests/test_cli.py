@@ -116,6 +116,20 @@ def test_a_result_without_profiles_says_what_it_lacks_and_the_command_that_predi
     assert follow_up_command(args) == "dtid plan --prior id.json --after r.blf --dbc v.dbc"
 
 
+@pytest.mark.parametrize(
+    "options", [["--bounds", "c12=100:400"], ["--generations", "3"], ["--profile-points", "5"]]
+)
+def test_diagnose_refuses_the_identifications_options_beside_an_identification(
+    options: list[str], recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With --identification the identification is given: its options were ignored silently."""
+    identification = tmp_path / "id.json"
+    identification.write_text('{"parameters": {}}')
+    argv = ["diagnose", str(recording), "--identification", str(identification), *options]
+    message = _error(capsys, argv)
+    assert f"{options[0]} sets the identification" in message and "drop one" in message
+
+
 def test_the_global_options_may_follow_the_command(
     recording: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

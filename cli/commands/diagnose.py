@@ -24,6 +24,7 @@ from dtid.cli.commands.common import (
     output_file,
     plot_file,
     read_identification,
+    read_parameter_set,
     vehicle_data,
 )
 from dtid.cli.commands.identify import (
@@ -33,10 +34,12 @@ from dtid.cli.commands.identify import (
     parse_bounds,
     search_settings,
 )
+from dtid.errors import ConfigError
 from dtid.identification.diagnosis.diagnose import Diagnosis, diagnose_document, diagnose_report
+from dtid.identification.search.identify import SearchSettings
 from dtid.jsonfile import write_json
 from dtid.simulator.mechanisms import BY_NAME
-from dtid.simulator.parameters import load_parameters, reference_parameters
+from dtid.simulator.parameters import reference_parameters
 from dtid.workflow import identify, measured_tests
 
 SHIFTS_SHOWN = 4
@@ -93,6 +96,7 @@ def add_mechanisms_option(parser: argparse.ArgumentParser, what: str = "") -> No
 def run(args: argparse.Namespace) -> int:
     """Diagnose, print the verdict first, write JSON and plot as asked."""
     if args.identification is not None:
+        refuse_search_options(args)
         document = read_identification(args.identification)
         vehicle = vehicle_data(args, (args.identification, document))
         tests = measured_tests(args.recordings, args.dbc, args.signals, vehicle)
@@ -105,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
             dbc=args.dbc,
             signals=args.signals,
             vehicle=vehicle,
-            prior=load_parameters(args.prior) if args.prior else reference_parameters(),
+            prior=read_parameter_set(args.prior, "--prior")[0]
+            if args.prior
+            else reference_parameters(),
             bounds=parse_bounds(args.bounds),
             span=None if args.span is None else args.span / 100,
             identify_amplitudes=args.identify,
@@ -127,6 +133,35 @@ def run(args: argparse.Namespace) -> int:
         plot_mismatch(diagnosis, args.plot)
         print(f"plot: {args.plot}")
     return 0
+
+
+def refuse_search_options(args: argparse.Namespace) -> None:
+    """Refuse the identification's options beside ``--identification``: the identification is
+    given, so they would be ignored without a word.
+
+    Raises
+    ------
+    ConfigError
+        Naming the first such option given.
+    """
+    defaults = SearchSettings()
+    given = {
+        "--prior": args.prior is not None,
+        "--span": args.span is not None,
+        "--bounds": bool(args.bounds),
+        "--generations": args.generations != defaults.generations,
+        "--popsize": args.popsize != defaults.popsize,
+        "--polish-evaluations": args.polish_evaluations != defaults.polish_evaluations,
+        "--single-start": args.single_start,
+        "--profile-points": args.profile_points != 0,
+    }
+    for option, used in given.items():
+        if used:
+            raise ConfigError(
+                f"{option} sets the identification, and --identification {args.identification} "
+                "gives it: drop one of them (without --identification, dtid diagnose identifies "
+                "first with these options)"
+            )
 
 
 def print_diagnosis(diagnosis: Diagnosis) -> None:
