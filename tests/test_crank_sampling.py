@@ -169,6 +169,17 @@ def test_the_live_worker_says_once_that_it_left_the_request_out(
     assert caplog.text.count("the torque_request role comes 6.0 times a crank revolution") == 1
 
 
+def test_a_speed_of_no_running_engine_points_to_the_dbc() -> None:
+    """A DBC that is not the vehicle's decodes another message as the speed (an independent
+    recording read with the product's DBC: 33 rpm at 28 Hz): the problem says so."""
+    times = np.arange(0.0, 10.0, 1 / 28.3)
+    sampling = crank_sampling(times, times, np.full_like(times, 33.0) + 0.5 * np.sin(times))
+    assert sampling is not None
+    problem = sampling.problem("speed", 4.0)
+    assert problem is not None and "it reads 33 rpm, no running engine's speed" in problem
+    assert "give the vehicle's DBC with --dbc" in problem
+
+
 def test_a_speed_in_the_wrong_unit_is_named_by_its_own_timing(
     periodic: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -183,6 +194,7 @@ def test_a_speed_in_the_wrong_unit_is_named_by_its_own_timing(
     error = capsys.readouterr().err
     assert "the speed role comes 38.2 times a crank revolution" in error
     assert "the speed's values are 0.105 times what the samples' timing implies" in error
+    assert "another signal" not in error  # its timing is the crank's: the unit is what is off
     assert (
         main(["frf", str(periodic / "crank.blf"), "--signals", str(periodic / "signals.toml")]) == 0
     )

@@ -40,6 +40,9 @@ crank-synchronous sampling gives -1, time-periodic 0."""
 MIN_SPEED_SPREAD = 0.003
 """Relative standard deviation of the speed below which the slope is not read (a steady idle
 tells the two samplings apart by their rate only)."""
+ENGINE_RPM = (300.0, 8000.0)
+"""Where a running engine's speed lies, rpm: a speed role read outside it is most likely
+another signal (a DBC that is not the vehicle's decodes another message's bytes)."""
 
 
 @dataclass(frozen=True)
@@ -55,11 +58,14 @@ class CrankSampling:
         None where the speed varied too little to read it.
     rate_hz
         Median sample rate, Hz.
+    speed_rpm
+        Median engine speed over the samples, rpm.
     """
 
     per_revolution: float
     slope: float | None
     rate_hz: float
+    speed_rpm: float = float("nan")
 
     def problem(self, role: str, expected: float) -> str | None:
         """What is wrong with ``role``'s sampling for a series expected ``expected`` times a
@@ -86,6 +92,13 @@ class CrankSampling:
                 f" (a four-stroke engine of {2 * self.per_revolution:.0f} cylinders reports "
                 f"{self.per_revolution:.1f} strokes a revolution; the model's engine has "
                 f"{2 * STROKES_PER_REVOLUTION:.0f})"
+            )
+        low, high = ENGINE_RPM
+        if role == "speed" and periodic and not low <= self.speed_rpm <= high:
+            scale = (
+                f" (and it reads {self.speed_rpm:.0f} rpm, no running engine's speed: most "
+                "likely another signal, decoded with a DBC that is not the vehicle's; give "
+                "the vehicle's DBC with --dbc and its signal map with --signals)"
             )
         return (
             f"the {role} role comes {self.per_revolution:.1f} times a crank revolution "
@@ -125,4 +138,4 @@ def crank_sampling(
     slope = None
     if len(x) >= 10 and np.std(x) > MIN_SPEED_SPREAD:
         slope = float(np.cov(x, y)[0, 1] / np.var(x, ddof=1))
-    return CrankSampling(per_revolution, slope, 1.0 / typical)
+    return CrankSampling(per_revolution, slope, 1.0 / typical, float(np.median(speed)))
