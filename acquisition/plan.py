@@ -19,6 +19,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from dtid.acquisition.metadata import SCHEMA as METADATA_SCHEMA
 from dtid.errors import ConfigError
 
 MAX_TEST_S = 3600.0
@@ -239,15 +240,27 @@ def plan_from_document(document: object, where: str, request_period_s: float = 0
     entry = document.get("plan") if isinstance(document, dict) else None
     if not isinstance(entry, dict):
         raise ConfigError(f"{where} has no 'plan' entry; write one with dtid plan --json")
+    if document.get("schema") == METADATA_SCHEMA:
+        raise ConfigError(
+            f"{where} is a recording's metadata (the plan it was recorded with, without its "
+            "repeats); give the file dtid plan --json wrote"
+        )
     missing = [key for key in PLAN_FILE_KEYS if key not in entry]
     if missing:
         raise ConfigError(f"{where}: its plan has no {missing[0]!r}")
+    if entry.get("sweep", "linear") != "linear":
+        raise ConfigError(
+            f"{where}: its plan's sweep is {entry['sweep']!r}; the test sweeps linearly "
+            '(eq. 11): "linear"'
+        )
+    numbers = {}
+    for key in ("duration_s", "f1_hz", "f2_hz", "validation_nm", "settle_s", "pause_s"):
+        if key in entry:
+            value = entry[key]
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ConfigError(f"{where}: its plan's {key} is {value!r}, not a number")
+            numbers[key] = float(value)
     try:
-        numbers = {
-            key: float(entry[key])
-            for key in ("duration_s", "f1_hz", "f2_hz", "validation_nm", "settle_s", "pause_s")
-            if key in entry
-        }
         amplitudes = in_rounds([float(a) for a in entry["amplitudes_nm"]], entry["repeats"])
         return TestPlan(amplitudes_nm=amplitudes, request_period_s=request_period_s, **numbers)
     except (TypeError, ValueError, ConfigError) as error:

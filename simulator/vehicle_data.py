@@ -60,6 +60,7 @@ the truths of a simulated vehicle) are not read here::
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -159,8 +160,21 @@ def load_vehicle_data(path: str | Path) -> VehicleData:
     document = read_toml(path, "vehicle file")
     tables = [document.get(name, {}) for name in VEHICLE_TABLES]
     if not all(isinstance(t, dict) for t in tables) or not any(tables):
+        found = [name for name, value in document.items() if isinstance(value, dict)]
+        near = {
+            name: close[0]
+            for name in found
+            if (close := difflib.get_close_matches(name, VEHICLE_TABLES, n=1))
+        }
+        has = (
+            f" (it has {', '.join(f'[{name}]' for name in found)}"
+            + "".join(f"; [{name}] for [{meant}]?" for name, meant in near.items())
+            + ")"
+            if found
+            else ""
+        )
         raise ConfigError(
-            f"vehicle file {path} has no [engine] table; give the crank-train data there "
+            f"vehicle file {path} has no [engine] table{has}; give the crank-train data there "
             f"({', '.join(ENGINE_KEYS)}), the speed sensor's arithmetic in [sensors] and the "
             "model's integration in [model]"
         )

@@ -329,6 +329,19 @@ def test_the_daemon_configuration_runs_a_plan_file(tmp_path: Path) -> None:
     (tmp_path / "bad.json").write_text('{"plan": {"amplitudes_nm": [5]}}')
     with pytest.raises(ConfigError, match="has no 'repeats'"):
         plan_from_file(tmp_path / "bad.json")
+    document = json.loads((tmp_path / "plan.json").read_text())
+    for key, value, message in (  # hand-edited: a traceback's words, or silently linear
+        ("f2_hz", None, "its plan's f2_hz is None, not a number"),
+        ("sweep", "log", "its plan's sweep is 'log'; the test sweeps linearly"),
+    ):
+        edited = {"plan": {**document["plan"], key: value}}
+        (tmp_path / "bad.json").write_text(json.dumps(edited))
+        with pytest.raises(ConfigError, match=message):
+            plan_from_file(tmp_path / "bad.json")
+    recorded = {"schema": "dtid-recording-metadata/1", "plan": document["plan"]}
+    (tmp_path / "bad.json").write_text(json.dumps(recorded))  # a recording's sidecar
+    with pytest.raises(ConfigError, match="is a recording's metadata"):
+        plan_from_file(tmp_path / "bad.json")
 
 
 def test_dtid_simulate_records_the_planned_test(

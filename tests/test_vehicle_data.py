@@ -67,6 +67,7 @@ def test_the_model_table_chooses_the_integration(tmp_path: Path) -> None:
         ("[engine]\nbore = 82\n", "bore = 82 lies outside 0.05-0.15 m.*give it in m"),  # mm
         ("[engine]\np_l = 0.35\n", "p_l = 0.35 lies outside 10000-350000 Pa.*in Pa"),  # bar
         ("[drivetrain]\nJ1 = 0.1\n", "has no \\[engine\\] table"),
+        ("[engin]\nbore = 0.08\n", r"it has \[engin\]; \[engin\] for \[engine\]\?"),
         ("[sensors]\nspeed_average = 'mean'\n", "times.* or .*speeds"),
         ("[model]\nintegration = 'rk4'\n", "euler.* or .*verlet"),
         ("[model]\nengine_lag = 'yes'\n", "engine_lag = .*none.* or .*measured"),
