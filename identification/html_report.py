@@ -177,8 +177,14 @@ def _not_a(document: dict[str, Any] | None, kind: str, path: Path) -> str | None
         return None
     if kind == "identification":
         parameters = document.get("parameters")
-        fits = isinstance(parameters, dict) and all(
-            isinstance(v, int | float) and not isinstance(v, bool) for v in parameters.values()
+        runs = (document.get("nrmse") or {}).get("fit") if isinstance(document, dict) else None
+        fits = (
+            isinstance(parameters, dict)
+            and all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in parameters.values()
+            )
+            and isinstance(runs, dict)
+            and bool(runs)  # the runs it was identified from: the page's fit and its recordings
         )
         command = "dtid identify --json"
     else:

@@ -148,6 +148,10 @@ def test_a_document_of_another_kind_is_named(
     given = ["--identification", str(tmp_path / "edited.json")]
     assert main(["report", recording, "-o", out, *given]) == 2
     assert "is not identification JSON" in capsys.readouterr().err
+    gutted = tmp_path / "gutted.json"  # its page read "fit NRMSE ." and "--profile-points 0"
+    gutted.write_text(json.dumps({"parameters": {"J_sum": 0.28}}))
+    assert main(["report", recording, "-o", out, "--identification", str(gutted)]) == 2
+    assert "is not identification JSON" in capsys.readouterr().err
     assert not (tmp_path / "r.html").exists()
 
 
