@@ -28,7 +28,13 @@ import numpy as np
 from dtid.errors import ConfigError
 from dtid.identification.frf.closed_loop import DEFAULT_RESOLUTION_HZ, FrfEstimate
 from dtid.identification.frf.runs import ZERO_FRACTION
-from dtid.identification.gain_choice import gain_warning, held_gain, lag_warning, model_gain
+from dtid.identification.gain_choice import (
+    gain_mismatch,
+    gain_warning,
+    held_gain,
+    lag_warning,
+    model_gain,
+)
 from dtid.identification.model.response import model_drv_db
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.samples.testdata import Series, TestData
@@ -707,6 +713,9 @@ def identify_runs(
         for estimate, lag in ((test.estimates[i], test.estimates[i].engine_lag) for i in runs)
         if lag is not None
     ]
+    mismatch = gain_mismatch(tests, ident)
+    if mismatch:
+        logger.warning("%s", mismatch)
     if lagging:
         modelled = all(t.loop.lag_s > 0 for t, _, _ in lagging)
         logger.warning("%s", lag_warning(lagging, gain, "K" not in operating, modelled))

@@ -10,7 +10,7 @@ import pytest
 from dtid.acquisition.plan import TestPlan
 from dtid.errors import AnalysisError, ConfigError
 from dtid.identification.frf.sensor_response import stroke_hold_gain
-from dtid.identification.gain_choice import held_gain
+from dtid.identification.gain_choice import gain_mismatch, held_gain
 from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import identification_runs, run_identification
 from dtid.identification.samples.testdata import TestData, from_simulation
@@ -366,6 +366,26 @@ def test_a_k_far_from_the_strokes_own_gives_way_to_theirs(vehicle: int, replaced
         assert f"--fix K={eq24:.4g}" in warning
     else:
         assert held == eq24
+
+
+def test_recordings_of_engines_that_deliver_differently_are_named(
+    reference: DrivetrainParameters,
+) -> None:
+    """Two recordings of engines calibrated 8 % apart (K 0.92 and 1.0, as the independent
+    source's two vehicles; 12 s chirps) are named as such, with each one's K; two recordings
+    of one engine (other seeds) are not."""
+    plan = TestPlan(amplitudes_nm=(5.0, 10.0), validation_nm=0.0, duration_s=12.0)
+
+    def measured(k: float, seed: int) -> MeasuredTest:
+        data = from_simulation(simulate(reference.replace(K=k), plan, seed=seed))
+        return MeasuredTest.from_data(f"K{k:g}-{seed}", data, 0.25)
+
+    mixed = identification_runs([measured(0.92, 1), measured(1.0, 2)])
+    warning = gain_mismatch(mixed.tests, mixed.runs)
+    assert warning is not None and "different shares of their torque requests" in warning
+    assert "0.92" in warning and "(K0.92-1)" in warning and "(K1-2)" in warning
+    same = identification_runs([measured(0.92, 3), measured(0.92, 4)])
+    assert gain_mismatch(same.tests, same.runs) is None
 
 
 def test_the_box_refuses_a_mass_ratio_outside_zero_to_one(reference: DrivetrainParameters) -> None:
