@@ -122,7 +122,19 @@ def null_statistics(objective: Objective, optimum: np.ndarray) -> np.ndarray:
     """The statistic of :data:`NULL_DRAWS` recordings of the model at the optimum, each fitted to
     first order, against the model they were drawn from (:func:`linearised_null`). A column of
     the Jacobian whose step could not idle is left out."""
-    jac = jacobian(objective, optimum)[0]
+    jac = jacobian_db(objective, optimum)
+    jac = jac[:, np.isfinite(jac).all(axis=0)]
+    row = objective.parameterization.parameters(optimum[None])
+    draws = model_recordings(objective, row, NULL_DRAWS)
+    sizes = [len(data) for run in objective.measured_db for data in run]
+    return linearised_null(jac, draws, sizes)
+
+
+def jacobian_db(objective: Objective, unit: np.ndarray) -> np.ndarray:
+    """(bins, free) Jacobian of the model's |G_DRV| (dB, every identifying run in order) per
+    normalised unit of each free parameter (:func:`dtid.identification.search.sensitivity.\
+jacobian`, whose residuals are divided by each run's measured spread)."""
+    jac = jacobian(objective, unit)[0]
     spreads = np.concatenate(
         [
             np.full(len(data), np.linalg.norm(data - data.mean()))
@@ -130,11 +142,14 @@ def null_statistics(objective: Objective, optimum: np.ndarray) -> np.ndarray:
             for data in run
         ]
     )
-    jac = jac[:, np.isfinite(jac).all(axis=0)] * spreads[:, None]
-    row = objective.parameterization.parameters(optimum[None])
-    draws = np.array([_recording(objective, row, NULL_SEED + k) for k in range(NULL_DRAWS)])
-    sizes = [len(data) for run in objective.measured_db for data in run]
-    return linearised_null(jac, draws, sizes)
+    return jac * spreads[:, None]
+
+
+def model_recordings(objective: Objective, row: np.ndarray, draws: int) -> np.ndarray:
+    """(draws, bins) recordings of the model at ``row`` (1, 12): single realizations with a
+    recording's noise, seeds from :data:`NULL_SEED`, every identifying run's |G_DRV| in order,
+    dB."""
+    return np.array([_recording(objective, row, NULL_SEED + k) for k in range(draws)])
 
 
 def linearised_null(jac_db: np.ndarray, draws: np.ndarray, sizes: Sequence[int]) -> np.ndarray:
