@@ -488,6 +488,10 @@ def _identification_section(document: dict[str, Any] | None, recordings: list[Pa
     ]
     if nrmse_rows:
         parts.append(table_html(["run", "role", "NRMSE"], nrmse_rows, numeric=(2,)))
+    comparison = document.get("comparison")
+    if comparison:  # dtid identify --compare FILE
+        css = " class='warn'" if comparison.get("fits_worse") else ""
+        parts.append(f"<p{css}>Compared: {escape(str(comparison.get('sentence', '')))}.</p>")
     curves = document.get("curves") or []
     if curves:
         measured = [

@@ -68,6 +68,32 @@ def _report_of(document: dict, command_outputs: CommandOutputs, tmp_path: Path) 
     return out.read_text()
 
 
+def test_a_compared_drivetrain_is_shown_with_its_verdict(
+    command_outputs: CommandOutputs, tmp_path: Path
+) -> None:
+    """`dtid identify --compare sheet.toml`'s verdict is on the page, marked where the
+    recordings reject the drivetrain."""
+    document = json.loads((command_outputs.folder / "identification.json").read_text())
+    sentence = "the drivetrain of sheet.toml fits these recordings significantly worse (p = 0.01)"
+    document["comparison"] = {
+        "source": "sheet.toml",
+        "theta": {"c12": 330.0},
+        "held": [],
+        "objective": 0.2,
+        "objective_identified": 0.1,
+        "nrmse": {"fit": {}},
+        "statistic": 80.0,
+        "critical": 20.0,
+        "draws": 99,
+        "degrees_of_freedom": 2,
+        "p_value": 0.01,
+        "fits_worse": True,
+        "sentence": sentence,
+    }
+    page = _report_of(document, command_outputs, tmp_path)
+    assert f"<p class='warn'>Compared: {sentence}.</p>" in page
+
+
 def test_a_campaign_rounds_target_tests_are_shown_with_their_outcome(
     command_outputs: CommandOutputs, tmp_path: Path
 ) -> None:

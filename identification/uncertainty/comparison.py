@@ -269,4 +269,5 @@ class Comparison:
             "degrees_of_freedom": self.free,
             "p_value": test.p_value,
             "fits_worse": self.fits_worse,
+            "sentence": self.sentence(),
         }
