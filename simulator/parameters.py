@@ -14,6 +14,7 @@ non-physical key.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import tomllib
 from dataclasses import dataclass
@@ -22,6 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from dtid.errors import ConfigError
+
+logger = logging.getLogger(__name__)
 
 REFERENCE_VEHICLE = Path(__file__).with_name("reference_vehicle.toml")
 
@@ -35,22 +38,35 @@ class ParameterSpec:
     meaning: str
     strictly_positive: bool
     """True where zero is not physical (an inertia, the engine gain); else zero is allowed."""
+    car_range: tuple[float, float]
+    """Where any passenger car's value lies, generously (SI): a value outside is more likely in
+    another unit than a car's (:func:`implausible`)."""
+    other_unit: tuple[str, float] | None = None
+    """A unit the value is often given in, and that unit in SI units (1 g*m^2 = 1e-3 kg*m^2)."""
 
 
+DEG = math.pi / 180.0
 SPECS: tuple[ParameterSpec, ...] = (
-    ParameterSpec("J1", "kg*m^2", "engine-side inertia (crank train, DMF primary)", True),
-    ParameterSpec("J2", "kg*m^2", "DMF secondary inertia with clutch cover", True),
-    ParameterSpec("J3", "kg*m^2", "clutch disc and gearbox input inertia in neutral", True),
-    ParameterSpec("c12", "N*m/rad", "DMF arc-spring stiffness", False),
-    ParameterSpec("c23", "N*m/rad", "clutch/gear coupling stiffness", False),
-    ParameterSpec("d12", "N*m*s/rad", "DMF viscous damping", False),
-    ParameterSpec("d23", "N*m*s/rad", "clutch/gear viscous damping", False),
-    ParameterSpec("Tc12", "N*m", "DMF Coulomb friction torque", False),
-    ParameterSpec("eps12", "rad", "DMF free play, total width", False),
-    ParameterSpec("eps23", "rad", "gear and clutch-hub play, total width", False),
-    ParameterSpec("T_loss", "N*m", "constant loss torque on J1 at idle", False),
-    ParameterSpec("K", "1", "engine gain from requested to mean torque (eq. 3)", True),
-)
+    ParameterSpec("J1", "kg*m^2", "engine-side inertia (crank train, DMF primary)", True,
+                  (0.03, 1.5), ("g*m^2", 1e-3)),
+    ParameterSpec("J2", "kg*m^2", "DMF secondary inertia with clutch cover", True,
+                  (0.01, 1.5), ("g*m^2", 1e-3)),
+    ParameterSpec("J3", "kg*m^2", "clutch disc and gearbox input inertia in neutral", True,
+                  (0.001, 0.3), ("g*m^2", 1e-3)),
+    ParameterSpec("c12", "N*m/rad", "DMF arc-spring stiffness", False,
+                  (20.0, 5000.0), ("N*m/deg", 1 / DEG)),
+    ParameterSpec("c23", "N*m/rad", "clutch/gear coupling stiffness", False,
+                  (2.0, 3000.0), ("N*m/deg", 1 / DEG)),
+    ParameterSpec("d12", "N*m*s/rad", "DMF viscous damping", False, (0.0, 30.0)),
+    ParameterSpec("d23", "N*m*s/rad", "clutch/gear viscous damping", False, (0.0, 10.0)),
+    ParameterSpec("Tc12", "N*m", "DMF Coulomb friction torque", False, (0.0, 50.0)),
+    ParameterSpec("eps12", "rad", "DMF free play, total width", False, (0.0, 0.5), ("deg", DEG)),
+    ParameterSpec("eps23", "rad", "gear and clutch-hub play, total width", False, (0.0, 0.2),
+                  ("deg", DEG)),
+    ParameterSpec("T_loss", "N*m", "constant loss torque on J1 at idle", False, (0.0, 150.0)),
+    ParameterSpec("K", "1", "engine gain from requested to mean torque (eq. 3)", True,
+                  (0.3, 3.0), ("%", 0.01)),
+)  # fmt: skip
 NAMES: tuple[str, ...] = tuple(spec.name for spec in SPECS)
 UNITS: dict[str, str] = {spec.name: spec.unit for spec in SPECS}
 INDEX: dict[str, int] = {name: i for i, name in enumerate(NAMES)}
@@ -117,6 +133,33 @@ def _check_value(spec: ParameterSpec, value: object, source: str) -> None:
         )
 
 
+def implausible(parameters: DrivetrainParameters, source: str) -> list[str]:
+    """What to say of each value outside its :attr:`ParameterSpec.car_range`: most likely given
+    in another unit (an inertia in g*m^2, a stiffness in N*m/deg, a play in degrees), which the
+    search box and the model then take as a car beyond any passenger car's. Where the value read
+    in the spec's :attr:`~ParameterSpec.other_unit` lies within the range, the message gives it.
+    """
+    messages = []
+    for spec in SPECS:
+        value = getattr(parameters, spec.name)
+        low, high = spec.car_range
+        if low <= value <= high:
+            continue
+        message = (
+            f"{source}: {spec.name} = {value:g} {spec.unit} lies outside {low:g}-{high:g} "
+            f"{spec.unit}, where a passenger car's {spec.meaning} lies"
+        )
+        if spec.other_unit is not None:
+            unit, factor = spec.other_unit
+            if low <= value * factor <= high:
+                message += (
+                    f"; if it is in {unit}, it is {value * factor:.4g} {spec.unit}: give it in "
+                    f"{spec.unit}"
+                )
+        messages.append(message)
+    return messages
+
+
 def parse_parameters(table: dict[str, object], source: str) -> DrivetrainParameters:
     """Validate a ``{name: value}`` mapping and build a parameter set.
 
@@ -145,7 +188,10 @@ def parse_parameters(table: dict[str, object], source: str) -> DrivetrainParamet
         )
     for spec in SPECS:
         _check_value(spec, table[spec.name], source)
-    return DrivetrainParameters(**{name: float(table[name]) for name in NAMES})  # type: ignore[arg-type]
+    parameters = DrivetrainParameters(**{name: float(table[name]) for name in NAMES})  # type: ignore[arg-type]
+    for message in implausible(parameters, source):
+        logger.warning("%s", message)
+    return parameters
 
 
 VEHICLE_TABLES = ("engine", "sensors", "model")

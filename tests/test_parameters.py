@@ -40,6 +40,24 @@ def test_reference_round_trips_through_toml(tmp_path: Path) -> None:
     assert DrivetrainParameters.from_array(loaded.as_array()) == loaded
 
 
+def test_a_value_in_another_unit_is_named_with_its_si_value(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An inertia in g*m^2 (J1 = 150) or a stiffness in N*m/deg (the reference file's own
+    comment gives c12 as 5.2 N*m/deg) was taken as a vehicle beyond any car; a value outside a
+    passenger car's range is now named, with what it is in SI where the other unit fits. The
+    reference vehicle is not named."""
+    with caplog.at_level("WARNING"):
+        load_parameters(_write(tmp_path, _reference_body()))
+    assert not caplog.text
+    with caplog.at_level("WARNING"):
+        load_parameters(_write(tmp_path, _reference_body(J1="150", c12="5.2", T_loss="900")))
+    assert "J1 = 150 kg*m^2 lies outside 0.03-1.5 kg*m^2" in caplog.text
+    assert "if it is in g*m^2, it is 0.15 kg*m^2" in caplog.text
+    assert "if it is in N*m/deg, it is 297.9 N*m/rad" in caplog.text
+    assert "T_loss = 900 N*m lies outside 0-150 N*m" in caplog.text
+
+
 def test_unknown_key_is_named(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="unknown parameter 'J4'"):
         load_parameters(_write(tmp_path, _reference_body(J4="1.0")))
