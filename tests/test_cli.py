@@ -15,6 +15,7 @@ from json_schemas import validate
 from dtid.cli import main
 from dtid.cli.commands.common import ProgressBar
 from dtid.cli.commands.identify import follow_up_command, unprofiled_note
+from dtid.cli.commands.inspect import no_runs_reason
 from dtid.errors import RecordingError
 from dtid.identification.gain_choice import gain_warning
 
@@ -128,6 +129,16 @@ def test_diagnose_refuses_the_identifications_options_beside_an_identification(
     argv = ["diagnose", str(recording), "--identification", str(identification), *options]
     message = _error(capsys, argv)
     assert f"{options[0]} sets the identification" in message and "drop one" in message
+
+
+def test_a_recording_without_chirps_says_what_its_test_torque_did() -> None:
+    """`dtid inspect` of a log whose test torque sat at its raw minimum (-131072 N*m) said
+    "the test torque is zero or absent"."""
+    summary = {"count": 500, "min": -131072.0, "max": -131072.0}
+    assert "holds -131072 N*m throughout: a raw value" in no_runs_reason(summary)
+    assert "absent" in no_runs_reason(None) and "absent" in no_runs_reason({"count": 0})
+    assert "no test was run" in no_runs_reason({"count": 9, "min": 0.0, "max": 0.0})
+    assert "holds no chirp" in no_runs_reason({"count": 9, "min": -2.0, "max": 3.0})
 
 
 def test_the_global_options_may_follow_the_command(

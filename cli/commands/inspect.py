@@ -78,6 +78,23 @@ def report(recording: Recording) -> dict[str, object]:
     }
 
 
+def no_runs_reason(test_torque: dict | None) -> str:
+    """Why a recording holds no chirp run, from its test torque's summary (``roles`` entry of
+    the JSON): absent, constant (at zero: no test run; elsewhere: a raw value the signal never
+    left, or the map's scale or offset), or varying without a chirp the run finder takes."""
+    if not test_torque or not test_torque["count"]:
+        return "the test torque is absent"
+    low, high = test_torque["min"], test_torque["max"]
+    if low == high == 0:
+        return "the test torque is zero throughout: no test was run"
+    if low == high:
+        return (
+            f"the test torque holds {low:g} N*m throughout: a raw value its signal never left "
+            "(no test run, or the signal map's scale or offset is off)"
+        )
+    return "the test torque varies but holds no chirp: not the tool's test torque?"
+
+
 def _fmt(value: object, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
@@ -151,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"  {problem}: {effect}")
     if not document["runs"]:
-        print("no chirp runs (the test torque is zero or absent)")
+        print(f"no chirp runs ({no_runs_reason(document['roles'].get('test_torque'))})")
     for run in document["runs"]:
         print(
             f"chirp {run['start_s']:.1f}-{run['end_s']:.1f} s: {run['amplitude_nm']:.2f} N*m, "
