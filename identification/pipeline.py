@@ -58,7 +58,11 @@ from dtid.identification.search.parameterization import (
 )
 from dtid.identification.search.runs import amplitude_levels, runs_at, split_runs
 from dtid.identification.search.start_values import start_thetas
-from dtid.identification.uncertainty.comparison import Comparison, point_test
+from dtid.identification.uncertainty.comparison import (
+    Comparison,
+    outside_intervals,
+    point_test,
+)
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
 from dtid.identification.uncertainty.statistic import THRESHOLD
 from dtid.identification.uncertainty.target_test import TargetTest, target_test
@@ -378,6 +382,9 @@ class IdentificationReport:
             free=len(par.free),
             test=point_test(self.fit.objective(par), self.identification.unit, row),
             nrmse=scores,
+            outside=outside_intervals(
+                theta, {name: prof.interval for name, prof in self.profiles.items()}
+            ),
         )
         return dataclasses.replace(self, comparison=comparison)
 

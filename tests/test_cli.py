@@ -373,6 +373,7 @@ def test_identify_json_contract(recording: Path, tmp_path: Path) -> None:
     assert compared["theta"]["c12"] == 300.0 and compared["theta"]["eps12"] == 0.02
     assert not compared["fits_worse"]  # the recording's own vehicle
     assert compared["sentence"].startswith("the drivetrain of ")
+    assert set(compared["outside_intervals"]) <= {"c12", "d12"}  # the profiled ones only
     assert 150 <= document["parameters"]["c12"] <= 450
     assert all(
         value is None or 150 <= value <= 450 for value in document["intervals"]["c12"].values()

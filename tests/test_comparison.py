@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -11,7 +13,11 @@ from dtid.identification.pipeline import IdentificationReport, run_identificatio
 from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
-from dtid.identification.uncertainty.comparison import NULL_DRAWS, linearised_null
+from dtid.identification.uncertainty.comparison import (
+    NULL_DRAWS,
+    linearised_null,
+    outside_intervals,
+)
 from dtid.identification.uncertainty.statistic import independent_bins, nested_p_value, statistic
 from dtid.simulator.parameters import DrivetrainParameters
 from dtid.simulator.simulate import SimulationOptions, simulate
@@ -72,6 +78,26 @@ def test_the_held_parameters_are_tested_at_their_held_values(
     itself = identified.compared(identified.identification.parameters, "itself").comparison
     assert itself is not None and itself.test.statistic == 0.0 and itself.test.p_value == 1.0
     assert "held as identified: J_sum, x1, x12" in comparison.sentence()
+
+
+def test_the_values_outside_their_intervals_are_named(
+    identified: IdentificationReport, reference: DrivetrainParameters
+) -> None:
+    """One at a time: a data sheet's c12 above its interval and its d12 below an interval open
+    above are named with the ends; a value inside, or a parameter without a profile, is not."""
+    theta = {"c12": 330.0, "d12": 0.5, "eps12": 0.02, "x1": 0.6}
+    intervals = {"c12": (290.0, 310.0), "d12": (0.8, None), "eps12": (0.019, 0.021)}
+    assert outside_intervals(theta, intervals) == {
+        "c12": (330.0, 290.0, 310.0),
+        "d12": (0.5, 0.8, None),
+    }
+    comparison = identified.compared(reference, "sheet.toml").comparison
+    assert comparison is not None and comparison.outside == {}  # no profiles made
+    told = dataclasses.replace(comparison, outside=outside_intervals(theta, intervals))
+    assert told.sentence().endswith(
+        "; outside their 95 % intervals: c12 330 (290 - 310), d12 0.5 (0.8 - open))"
+    )
+    assert told.as_dict()["outside_intervals"]["d12"] == {"value": 0.5, "lower": 0.8, "upper": None}
 
 
 def test_the_drawn_reference_holds_its_level_where_the_f_reference_does_not() -> None:

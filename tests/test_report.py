@@ -88,6 +88,7 @@ def test_a_compared_drivetrain_is_shown_with_its_verdict(
         "degrees_of_freedom": 2,
         "p_value": 0.01,
         "fits_worse": True,
+        "outside_intervals": {"c12": {"value": 330.0, "lower": 290.0, "upper": 310.0}},
         "sentence": sentence,
     }
     page = _report_of(document, command_outputs, tmp_path)

@@ -221,6 +221,9 @@ class Comparison:
     nrmse
         The set's NRMSE per run, ``{"fit": {...}, "validation": {...}}`` as the identification's
         (on the report's own realizations).
+    outside
+        The set's values outside the identification's 95 % profile intervals, by name: (value,
+        lower, upper), an open end None (:func:`outside_intervals`); empty without profiles.
     """
 
     source: str
@@ -229,6 +232,9 @@ class Comparison:
     free: int
     test: PointTest
     nrmse: Mapping[str, Mapping[str, float]]
+    outside: Mapping[str, tuple[float, float | None, float | None]] = dataclasses.field(
+        default_factory=dict
+    )
 
     @property
     def fits_worse(self) -> bool:
@@ -251,7 +257,13 @@ class Comparison:
         else:
             verdict = "fits these recordings as well as the identified one within their scatter"
         held = f"; held as identified: {', '.join(self.held)}" if self.held else ""
-        return f"the drivetrain of {self.source} {verdict} ({figures}{held})"
+        outside = ""
+        if self.outside:
+            outside = "; outside their 95 % intervals: " + ", ".join(
+                f"{name} {value:.4g} ({_end(lower)} - {_end(upper)})"
+                for name, (value, lower, upper) in self.outside.items()
+            )
+        return f"the drivetrain of {self.source} {verdict} ({figures}{held}{outside})"
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready (``comparison`` of the identification JSON)."""
@@ -269,5 +281,28 @@ class Comparison:
             "degrees_of_freedom": self.free,
             "p_value": test.p_value,
             "fits_worse": self.fits_worse,
+            "outside_intervals": {
+                name: {"value": value, "lower": lower, "upper": upper}
+                for name, (value, lower, upper) in self.outside.items()
+            },
             "sentence": self.sentence(),
         }
+
+
+def outside_intervals(
+    theta: Mapping[str, float], intervals: Mapping[str, tuple[float | None, float | None]]
+) -> dict[str, tuple[float, float | None, float | None]]:
+    """The values of ``theta`` outside their 95 % intervals (an open end None), by name, in
+    the intervals' order: which of a data sheet's parameters the recordings contradict one at
+    a time, where the joint test says whether they contradict the whole."""
+    out = {}
+    for name, (lower, upper) in intervals.items():
+        value = theta[name]
+        if (lower is not None and value < lower) or (upper is not None and value > upper):
+            out[name] = (value, lower, upper)
+    return out
+
+
+def _end(value: float | None) -> str:
+    """An interval's end as the sentence shows it (open: "open")."""
+    return "open" if value is None else f"{value:.4g}"
