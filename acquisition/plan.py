@@ -209,23 +209,33 @@ def plan_from_file(path: str | Path, request_period_s: float = 0.01) -> TestPlan
     ConfigError
         If the file cannot be read, is not JSON, or its ``plan`` lacks a key or holds a bad value.
     """
-    path = Path(path)
-    try:
-        document = json.loads(path.read_text())
-    except OSError as error:
-        raise ConfigError(f"cannot read the plan file {path}: {error.strerror}") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
-        raise ConfigError(f"plan file {path} is not JSON: {error}") from None
-    return plan_from_document(document, f"plan file {path}", request_period_s)
+    return plan_from_document(_plan_document(path), f"plan file {path}", request_period_s)
 
 
 def planned_setpoint(path: str | Path) -> float | None:
     """The idle speed a ``dtid plan --json`` file's prediction assumed (its plan's
-    ``setpoint_rpm``), rpm; None where it names none. The file is read by :func:`plan_from_file`
-    first, which names what is wrong with it."""
-    entry = json.loads(Path(path).read_text()).get("plan") or {}
-    value = entry.get("setpoint_rpm")
+    ``setpoint_rpm``), rpm; None where it names none.
+
+    Raises
+    ------
+    ConfigError
+        If the file cannot be read or is not JSON.
+    """
+    document = _plan_document(path)
+    entry = document.get("plan") if isinstance(document, dict) else None
+    value = entry.get("setpoint_rpm") if isinstance(entry, dict) else None
     return float(value) if isinstance(value, int | float) else None
+
+
+def _plan_document(path: str | Path) -> object:
+    """The JSON document of a plan file, or ConfigError naming why it cannot be read."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except OSError as error:
+        raise ConfigError(f"cannot read the plan file {path}: {error.strerror}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ConfigError(f"plan file {path} is not JSON: {error}") from None
 
 
 def plan_from_document(document: object, where: str, request_period_s: float = 0.01) -> TestPlan:

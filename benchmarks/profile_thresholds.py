@@ -35,6 +35,7 @@ from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.identification.uncertainty.comparison import jacobian_db, model_recordings
+from dtid.identification.uncertainty.profile import interval_and_verdict
 from dtid.identification.uncertainty.statistic import (
     CONFIDENCE,
     THRESHOLD,
@@ -99,26 +100,17 @@ def thresholds(index: int) -> tuple[dict[str, float], dict[str, tuple[bool, bool
 
 
 def _holds(profile: dict, threshold: float, truth: float) -> bool:
-    """Whether the stored profile's statistic, less its margin, stays below ``threshold`` from
-    its minimum to the truth (the crossing read between its points, in the statistic's root)."""
+    """Whether the stored profile's interval at ``threshold`` holds the truth: the profiles' own
+    reading (:func:`dtid.identification.uncertainty.profile.interval_and_verdict`, crossing in
+    the statistic's root) of the statistic less its margin, scaled so that ``threshold`` falls
+    on their 3.84."""
     values = np.array(profile["values"], dtype=float)
     stat = np.array([np.inf if s is None else s for s in profile["statistic"]], dtype=float)
     stat -= np.array([0.0 if m is None else m for m in profile["margin"]], dtype=float)
     order = np.argsort(values)
-    values, stat = values[order], stat[order]
-    best = values[int(np.argmin(stat))]
-    side = values <= best if truth < best else values >= best
-    rejected = np.flatnonzero(side & (stat > threshold))
-    if not len(rejected):
-        return True
-    i = rejected[-1] if truth < best else rejected[0]
-    j = i + 1 if truth < best else i - 1
-    if not np.isfinite(stat[i]):
-        end = values[i]
-    else:
-        roots = np.sqrt(np.maximum([stat[j], stat[i]], 0.0))
-        end = float(np.interp(np.sqrt(threshold), roots, [values[j], values[i]]))
-    return truth >= end if truth < best else truth <= end
+    values, stat = values[order], stat[order] * THRESHOLD / threshold
+    (lower, upper), _ = interval_and_verdict(values, stat, values[int(np.argmin(stat))])
+    return (lower is None or lower <= truth) and (upper is None or truth <= upper)
 
 
 def main() -> None:

@@ -45,6 +45,32 @@ def model_gain(tests: Sequence[MeasuredTest]) -> float:
     return float(np.mean(gains + ([engine_gain(prompt)] if prompt else [])))
 
 
+def stroke_gains(
+    tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]
+) -> list[tuple[str, float]]:
+    """Each recording's K from its strokes over its identifying runs (each stroke's mean torque
+    against the request it took: :meth:`dtid.identification.model.idle_loop.IdleLoop.\
+engine_gain`), as (recording name, K) in order; recordings without a torque request or without
+    runs, and those whose strokes give no K, are left out.
+
+    Parameters
+    ----------
+    tests, runs
+        The recordings and, per recording, its identifying runs.
+    """
+    gains = [
+        (
+            test.name,
+            test.loop.engine_gain(
+                [(test.estimates[i].run.start_s, test.estimates[i].run.end_s) for i in chosen]
+            )[0],
+        )
+        for test, chosen in zip(tests, runs, strict=True)
+        if test.loop.by_request and chosen
+    ]
+    return [(name, float(k)) for name, k in gains if np.isfinite(k)]
+
+
 def gain_mismatch(tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]) -> str | None:
     """What to say where the recordings' engines deliver different shares of their requests:
     each recording's strokes' K (each stroke's mean torque against the request it took, within
@@ -59,17 +85,11 @@ def gain_mismatch(tests: Sequence[MeasuredTest], runs: Sequence[Sequence[int]]) 
     tests, runs
         The recordings and, per recording, its identifying runs.
     """
-    gains = {
-        test.name: test.loop.engine_gain(
-            [(test.estimates[i].run.start_s, test.estimates[i].run.end_s) for i in chosen]
-        )[0]
-        for test, chosen in zip(tests, runs, strict=True)
-        if test.loop.by_request and chosen
-    }
-    gains = {name: k for name, k in gains.items() if np.isfinite(k)}
-    if len(gains) < 2 or max(gains.values()) / min(gains.values()) - 1 <= GAIN_DISAGREE:
+    gains = stroke_gains(tests, runs)
+    values = [k for _, k in gains]
+    if len(values) < 2 or max(values) / min(values) - 1 <= GAIN_DISAGREE:
         return None
-    listed = ", ".join(f"{k:.3f} ({name})" for name, k in gains.items())
+    listed = ", ".join(f"{k:.3f} ({name})" for name, k in gains)
     return (
         f"the recordings' engines deliver different shares of their torque requests: K {listed}, "
         f"more than {100 * GAIN_DISAGREE:.0f} % apart where one engine's strokes repeat theirs "
@@ -109,13 +129,7 @@ def held_gain(
     tuple
         The K to hold (1) and the warning (None where eq. 24's is held).
     """
-    windows = [
-        (test, [(test.estimates[i].run.start_s, test.estimates[i].run.end_s) for i in chosen])
-        for test, chosen in zip(tests, runs, strict=True)
-        if test.loop.by_request and chosen
-    ]
-    strokes = [test.loop.engine_gain(spans)[0] for test, spans in windows]
-    strokes = [k for k in strokes if np.isfinite(k)]
+    strokes = [k for _, k in stroke_gains(tests, runs)]
     if not strokes:
         return gain, None
     own = float(np.mean(strokes))

@@ -45,8 +45,9 @@ from dtid.identification.search.identify import (
     SearchSettings,
     identify,
     identify_from,
+    nrmse_by_run,
 )
-from dtid.identification.search.objective import FAILED_NRMSE, Objective, nrmse
+from dtid.identification.search.objective import FAILED_NRMSE, Objective
 from dtid.identification.search.parameterization import (
     PRIOR_SPAN,
     THETA_NAMES,
@@ -328,7 +329,8 @@ class IdentificationReport:
         if self.fit is not None:
             variations = {t.name: t.combustion_variation for t in self.fit.tests}
             selection = with_variation(selection, variations)
-        scores = run_nrmse(selection, self.identification.parameters.as_array())
+        params = self.identification.parameters.as_array()[None]
+        scores = nrmse_by_run(selection.tests, selection.runs, params)
         warn_unrepeatable(scores, selection.tests)
         result = dataclasses.replace(self.identification, validation_nrmse=scores)
         return dataclasses.replace(self, identification=result, validation=selection)
@@ -348,7 +350,7 @@ class IdentificationReport:
         if self.fit is None:
             raise ValueError("the report holds no identification runs to score a set on")
         row = parameters.replace(K=self.gain, T_loss=self.t_loss).as_array()
-        return sum(run_nrmse(self.fit, row).values())
+        return sum(nrmse_by_run(self.fit.tests, self.fit.runs, row[None]).values())
 
     def compared(self, parameters: DrivetrainParameters, source: str) -> IdentificationReport:
         """The report with another drivetrain tested against the identified one
@@ -372,9 +374,11 @@ class IdentificationReport:
             np.array([[theta[name] for name in THETA_NAMES]]), self.t_loss, self.gain
         )[0]
         par = self.parameterization
-        scores = {"fit": run_nrmse(self.fit, row)}
+        scores = {"fit": nrmse_by_run(self.fit.tests, self.fit.runs, row[None])}
         if self.validation is not None:
-            scores["validation"] = run_nrmse(self.validation, row)
+            scores["validation"] = nrmse_by_run(
+                self.validation.tests, self.validation.runs, row[None]
+            )
         comparison = Comparison(
             source=source,
             theta=theta,
@@ -536,17 +540,6 @@ class IdentificationReport:
             "comparison": self.comparison.as_dict() if self.comparison else None,
             "curves": self.curves() if self.fit else [],
         }
-
-
-def run_nrmse(selection: RunSelection, row: np.ndarray) -> dict[str, float]:
-    """NRMSE (eq. 16) of one physical parameter array (12,) on each run of a selection, by the
-    run's label, on the model's own realizations."""
-    scores = {}
-    for test, runs in zip(selection.tests, selection.runs, strict=True):
-        model = model_drv_db(row[None], test.model_test(runs))
-        for i, db in zip(runs, model, strict=True):
-            scores[test.run_label(i)] = float(nrmse(test.estimates[i].drv_db, db)[0])
-    return scores
 
 
 def with_variation(selection: RunSelection, variations: Mapping[str, float]) -> RunSelection:

@@ -405,8 +405,8 @@ def _identification(
     coordinates = objective.parameterization
     stages.setdefault("final", objective)
     params = coordinates.parameters(best[None])
-    fit = _nrmse_by_run(tests, identify_runs, params)
-    validation = _nrmse_by_run(tests, validate_runs, params)
+    fit = nrmse_by_run(tests, identify_runs, params)
+    validation = nrmse_by_run(tests, validate_runs, params)
     theta = coordinates.theta(best[None])[0]
     best = parameterization.unit(theta[None])[0]  # in the caller's coordinates
     return Identification(
@@ -613,11 +613,13 @@ def _polish(
     return result.x, float(result.fun)
 
 
-def _nrmse_by_run(
+def nrmse_by_run(
     tests: Sequence[MeasuredTest],
     runs: Sequence[Sequence[int]],
     params: np.ndarray,
 ) -> dict[str, float]:
+    """NRMSE (eq. 16) of one parameter set (``params``, (1, 12)) on each run given, by the run's
+    label, on the model's own realizations; recordings without runs are skipped."""
     out = {}
     for test, indices in zip(tests, runs, strict=True):
         if not indices:

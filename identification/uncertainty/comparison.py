@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dtid.identification.model.response import model_drv_db
-from dtid.identification.search.objective import Objective, nrmse
+from dtid.identification.search.objective import Objective, summed_nrmse
 from dtid.identification.search.sensitivity import jacobian
 from dtid.identification.uncertainty.statistic import CONFIDENCE, statistic
 from dtid.jsonfile import json_number
@@ -113,8 +113,8 @@ def point_test(objective: Objective, optimum: np.ndarray, other: np.ndarray) -> 
     return PointTest(
         statistic=statistic(measured, best_db, other_db),
         null=null_statistics(fresh, optimum),
-        objective_optimum=_eq17(measured, best_db),
-        objective_other=_eq17(measured, other_db),
+        objective_optimum=float(summed_nrmse(measured, [db[None] for db in best_db])[0]),
+        objective_other=float(summed_nrmse(measured, [db[None] for db in other_db])[0]),
     )
 
 
@@ -193,13 +193,6 @@ def _recording(objective: Objective, row: np.ndarray, seed: int) -> np.ndarray:
         )
         curves.extend(c[0] for c in model_drv_db(row, single))
     return np.concatenate(curves)
-
-
-def _eq17(measured_db: Sequence[np.ndarray], model_db: Sequence[np.ndarray]) -> float:
-    """Eq. (17): the sum of the runs' NRMSEs (eq. 16)."""
-    return float(
-        sum(nrmse(data, model[None])[0] for data, model in zip(measured_db, model_db, strict=True))
-    )
 
 
 @dataclass(frozen=True)
