@@ -59,6 +59,7 @@ from dtid.identification.search.parameterization import (
 )
 from dtid.identification.search.runs import amplitude_levels, runs_at, split_runs
 from dtid.identification.search.start_values import start_thetas
+from dtid.identification.uncertainty.closed_play import STIFFNESS_FACTORS, closed_play_check
 from dtid.identification.uncertainty.comparison import (
     Comparison,
     outside_intervals,
@@ -242,6 +243,9 @@ class SearchRestart:
         the lower).
     search_theta
         The search's optimum, setup-4 values by name, SI units.
+    found_by
+        What held the parameter: ``"profile"``, ``"target test"`` or ``"closed gear play"``
+        (:mod:`dtid.identification.uncertainty.closed_play`).
     """
 
     parameter: str
@@ -249,11 +253,20 @@ class SearchRestart:
     objective_search: float
     objective_restart: float
     search_theta: Mapping[str, float]
+    found_by: str = "profile"
 
     def message(self, adopted: bool) -> str:
         """What happened, for the log."""
+        held = {
+            "profile": f"the profile of {self.parameter}",
+            "target test": f"the target test of {self.parameter}",
+            "closed gear play": (
+                f"the search closed the gear play; {self.parameter} held at "
+                f"{' and '.join(f'{f:g}' for f in STIFFNESS_FACTORS)} times its value"
+            ),
+        }[self.found_by]
         head = (
-            f"the profile of {self.parameter} found a better fit than the search (the search's "
+            f"{held} found a better fit than the search (the search's "
             f"optimum {self.statistic:.1f} above the profile's minimum on the 95 % scale, "
             f"threshold {THRESHOLD:.2f}, or its value outside the interval): the search had ended "
             "at another optimum; restarted from there, "
@@ -272,6 +285,7 @@ class SearchRestart:
             "objective_restart": self.objective_restart,
             "adopted": self.objective_restart < self.objective_search,
             "search_theta": dict(self.search_theta),
+            "found_by": self.found_by,
         }
 
 
@@ -765,21 +779,39 @@ def identify_runs(
         tested[name] = target_test(
             polish, measured_db, name, result.unit, width, settings.seed, coarse
         )
+    closed = (
+        None
+        if "c23" in profiles or "c23" in tested
+        else closed_play_check(polish, measured_db, result.unit, settings.seed, coarse)
+    )
+    if closed is not None and not closed.beats_estimate:
+        logger.info(
+            "the search closed the gear play: with c23 held at %s times its %.4g N*m/rad no "
+            "open play fitted significantly better",
+            " and ".join(f"{f:g}" for f in STIFFNESS_FACTORS),
+            result.theta["c23"],
+        )
     restart = None
-    beaten = [
-        p
-        for p in [*profiles.values(), *(t.profile for t in tested.values())]
-        if p.beats_estimate and p.minimum_unit is not None
+    held = [
+        *((p, "profile") for p in profiles.values()),
+        *((t.profile, "target test") for t in tested.values()),
+        *([(closed, "closed gear play")] if closed is not None else []),
     ]
+    beaten = [(p, by) for p, by in held if p.beats_estimate and p.minimum_unit is not None]
     if beaten:  # a profile found a better fit than the search: go on from there
-        lowest = min(beaten, key=lambda p: float(np.min(p.objective)))
+        lowest, found_by = min(beaten, key=lambda pair: float(np.min(pair[0].objective)))
         assert lowest.minimum_unit is not None
         start = dict(
             zip(THETA_NAMES, map(float, par.theta(lowest.minimum_unit[None])[0]), strict=True)
         )
         moved = identify_from(tests, par, ident, [[] for _ in tests], start, settings, progress)
         restart = SearchRestart(
-            lowest.name, lowest.estimate_statistic, result.objective, moved.objective, result.theta
+            lowest.name,
+            lowest.estimate_statistic,
+            result.objective,
+            moved.objective,
+            result.theta,
+            found_by,
         )
         logger.warning("%s", restart.message(moved.objective < result.objective))
         kept = moved if moved.objective < result.objective else result

@@ -250,8 +250,13 @@ def print_report(
     restart = document.get("search_restart")
     if restart:
         outcome = "the estimate is the restart's" if restart["adopted"] else "no better; kept"
+        held = {
+            "profile": f"the profile of {restart['parameter']}",
+            "target test": f"the target test of {restart['parameter']}",
+            "closed gear play": f"{restart['parameter']} held off the closed gear play's value",
+        }[restart.get("found_by", "profile")]  # JSON files before 2026-12-08 have no found_by
         print(
-            f"search restarted where the profile of {restart['parameter']} fitted better: eq. "
+            f"search restarted where {held} fitted better: eq. "
             f"(17) {restart['objective_search']:.4f} -> {restart['objective_restart']:.4f} "
             f"({outcome})"
         )
@@ -265,8 +270,10 @@ def unprofiled_note(follow_up: str | None) -> str:
     Without intervals nothing says which values the recordings pin: on the independent
     vehicle_1 the search put J3 +18 % and c23 +15 % off the truth where its profiles' intervals
     run -48/+35 % for c23 and ``dtid plan --after`` predicts 25 % and 26 % at 2 sigma for J3
-    and c23; on a random vehicle like it the search closed the gear play (eq. 17 0.0889) where
-    the profile of c23 restarted it at 0.0737, the truth's basin (docs/accuracy.md).
+    and c23; on a random vehicle like it the search closed the gear play (eq. 17 0.0889), which
+    the profile of c23, and now the closed play's own check
+    (:mod:`dtid.identification.uncertainty.closed_play`), restart at 0.0737, the truth's basin
+    (docs/accuracy.md).
     """
     note = (
         "no intervals (--profile-points 0): these values come without their precision, and in a "
