@@ -56,6 +56,27 @@ def test_inspect_reports_roles_and_runs(recording: Path, tmp_path: Path) -> None
         assert run["end_s"] - run["start_s"] == pytest.approx(12.0, abs=0.05)
 
 
+def test_inspect_through_a_dbc_that_decodes_nothing_fails(
+    recording: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A DBC whose measured roles' messages the recording does not hold (here the product's own
+    with those identifiers moved; the tool's heartbeat still decodes) gets the report, its JSON,
+    and a non-zero exit naming the likely cause."""
+    own = Path(__file__).parents[1] / "dbc"
+    dbc = tmp_path / "other.dbc"
+    text = (own / "drivetrain.dbc").read_text()
+    for old, new in (("416", "516"), ("417", "517"), ("418", "518"), ("1696", "1796")):
+        text = text.replace(f"BO_ {old} ", f"BO_ {new} ")
+    dbc.write_text(text)
+    out = tmp_path / "inspect.json"
+    signals = own / "drivetrain_signals.toml"
+    argv = ["inspect", str(recording), "--dbc", str(dbc), "--signals", str(signals)]
+    message = _error(capsys, [*argv, "--json", str(out)])
+    assert "no frame of the speed's, the mean torque's or the test torque's message" in message
+    assert "--dbc and --signals" in message
+    assert json.loads(out.read_text())["roles"]["speed"]["count"] == 0
+
+
 def test_frf_json_and_plot(recording: Path, tmp_path: Path) -> None:
     out, plot = tmp_path / "frf.json", tmp_path / "frf.png"
     assert main(["frf", str(recording), "--json", str(out), "--plot", str(plot)]) == 0

@@ -12,6 +12,8 @@ from dtid.acquisition.metadata import interface_differences, read_metadata
 from dtid.cli.commands.common import add_interface_options, output_file
 from dtid.dbc.interface import VehicleInterface
 from dtid.dbc.loader import load_interface
+from dtid.dbc.roles import REQUIRED_ROLES
+from dtid.errors import DbcError
 from dtid.identification.frf.runs import find_runs
 from dtid.identification.samples.recording import Recording, load_recording
 from dtid.jsonfile import write_json
@@ -176,4 +178,12 @@ def run(args: argparse.Namespace) -> int:
         )
     if args.json:
         write_json(args.json, document)
+    roles = document["roles"]
+    if not any(roles[role]["count"] for role in REQUIRED_ROLES if role in roles):
+        database = args.dbc or "the product's own"
+        raise DbcError(
+            f"{args.recording}: no frame of the speed's, the mean torque's or the test torque's "
+            f"message (DBC: {database}): the DBC or the signal map is not this vehicle's; give "
+            "the vehicle's with --dbc and --signals"
+        )
     return 0
