@@ -226,6 +226,15 @@ def validation_runs(
     return _select(tests, identify_amplitudes, True, resolution_hz)
 
 
+def restart_finder(found_by: str, parameter: str) -> str:
+    """What found the better fit a search restarted from, as a phrase (``found_by`` and
+    ``parameter`` as :class:`SearchRestart` and its JSON hold them)."""
+    if found_by == "closed gear play":
+        factors = " and ".join(f"{f:g}" for f in STIFFNESS_FACTORS)
+        return f"{parameter} held at {factors} times the closed gear play's value"
+    return f"the {found_by} of {parameter}"
+
+
 @dataclass(frozen=True)
 class SearchRestart:
     """The search restarted where a profile had found a better fit than its optimum
@@ -257,23 +266,17 @@ class SearchRestart:
 
     def message(self, adopted: bool) -> str:
         """What happened, for the log."""
-        held = {
-            "profile": f"the profile of {self.parameter}",
-            "target test": f"the target test of {self.parameter}",
-            "closed gear play": (
-                f"the search closed the gear play; {self.parameter} held at "
-                f"{' and '.join(f'{f:g}' for f in STIFFNESS_FACTORS)} times its value"
-            ),
-        }[self.found_by]
         head = (
-            f"{held} found a better fit than the search (the search's "
-            f"optimum {self.statistic:.1f} above the profile's minimum on the 95 % scale, "
-            f"threshold {THRESHOLD:.2f}, or its value outside the interval): the search had ended "
-            "at another optimum; restarted from there, "
+            f"{restart_finder(self.found_by, self.parameter)} found a better fit than the "
+            f"search (the search's optimum {self.statistic:.1f} above the profile's minimum on "
+            f"the 95 % scale, threshold {THRESHOLD:.2f}, or its value outside the interval): the "
+            "search had ended at another optimum; restarted from there, "
             f"eq. (17) {self.objective_search:.4f} -> {self.objective_restart:.4f}"
         )
-        if adopted:
+        if adopted and self.found_by == "profile":
             return head + "; the estimate is the restart's (the intervals are the profiles')"
+        if adopted:
+            return head + "; the estimate is the restart's"
         return head + "; the restart did not improve on the search, whose estimate is kept"
 
     def as_dict(self) -> dict[str, object]:

@@ -130,10 +130,12 @@ def test_a_search_that_closed_the_gear_play_is_restarted_in_the_open_plays_basin
     found, true = report.parameters, theta_from_parameters(truth)
     errors = {n: found[n] / true[n] - 1 for n in ("c23", "d23", "eps23")}
     assert abs(errors["c23"]) < 0.35 and abs(errors["d23"]) < 0.6 and abs(errors["eps23"]) < 0.4
-    assert "c23 held at 0.5 and 1.5 times" in restart.message(True)
+    assert "c23 held at 0.5 and 1.5 times the closed gear play's value found" in restart.message(
+        True
+    )
     assert report.as_dict()["search_restart"]["found_by"] == "closed gear play"
     from dtid.cli.commands.identify import print_report
 
     print_report(report.as_dict(), {})
     printed = capsys.readouterr().out
-    assert "restarted where c23 held off the closed gear play's value fitted better" in printed
+    assert "restarted where c23 held at 0.5 and 1.5 times the closed gear play's value" in printed

@@ -29,7 +29,7 @@ from dtid.cli.commands.common import (
     vehicle_data,
 )
 from dtid.errors import ConfigError
-from dtid.identification.pipeline import OPERATING_POINT
+from dtid.identification.pipeline import OPERATING_POINT, restart_finder
 from dtid.identification.planning.design import DEFAULT_TARGETS_PERCENT, wider_than_targets
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.parameterization import (
@@ -250,11 +250,8 @@ def print_report(
     restart = document.get("search_restart")
     if restart:
         outcome = "the estimate is the restart's" if restart["adopted"] else "no better; kept"
-        held = {
-            "profile": f"the profile of {restart['parameter']}",
-            "target test": f"the target test of {restart['parameter']}",
-            "closed gear play": f"{restart['parameter']} held off the closed gear play's value",
-        }[restart.get("found_by", "profile")]  # JSON files before 2026-12-08 have no found_by
+        # identification JSON files before 2026-12-08 have no found_by: a profile's
+        held = restart_finder(restart.get("found_by", "profile"), restart["parameter"])
         print(
             f"search restarted where {held} fitted better: eq. "
             f"(17) {restart['objective_search']:.4f} -> {restart['objective_restart']:.4f} "
