@@ -119,6 +119,33 @@ def draw_vehicle(index: int) -> SimulationOptions:
     )
 
 
+def trial_recording(
+    index: int,
+    sweep: tuple[float, float] = (PLAN.f1_hz, PLAN.f2_hz),
+    around: DrivetrainParameters | None = None,
+    vehicle: SimulationOptions | None = None,
+    noise_seed: int | None = None,
+    engine_known: bool = True,
+) -> tuple[DrivetrainParameters, SimulationOptions, MeasuredTest]:
+    """Truth ``index`` (drawn around ``around``, :func:`draw_truth`), its vehicle (``vehicle``,
+    else :func:`draw_vehicle`) and the test (:data:`PLAN` swept over ``sweep``, Hz) simulated
+    with noise seed ``noise_seed`` (100 + index unless given), as a measured test whose engine
+    and speed sensor the model knows (``engine_known``; else the reference's)."""
+    truth = draw_truth(index, around)
+    vehicle = vehicle or draw_vehicle(index)
+    plan = dataclasses.replace(PLAN, f1_hz=sweep[0], f2_hz=sweep[1])
+    seed = 100 + index if noise_seed is None else noise_seed
+    measured = MeasuredTest.from_data(
+        "simulated",
+        from_simulation(simulate(truth, plan, vehicle, seed=seed)),
+        0.25,
+        VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
+        if engine_known
+        else VehicleData(),
+    )
+    return truth, vehicle, measured
+
+
 def nearest_optimum(
     truth: DrivetrainParameters, report: IdentificationReport, settings: SearchSettings
 ) -> tuple[dict[str, float], float]:
@@ -200,19 +227,12 @@ def main() -> None:
     args = parser.parse_args()
 
     around = None if args.around is None else _drivetrain_of(args.around)
-    truth, vehicle = draw_truth(args.truth, around), draw_vehicle(args.truth)
+    vehicle = draw_vehicle(args.truth)
     if args.setpoint is not None:  # the other draws stay
         controller = dataclasses.replace(vehicle.controller, setpoint_rpm=args.setpoint)
         vehicle = dataclasses.replace(vehicle, controller=controller)
-    plan = dataclasses.replace(PLAN, f1_hz=args.sweep[0], f2_hz=args.sweep[1])
-    noise_seed = 100 + args.truth if args.noise_seed is None else args.noise_seed
-    measured = MeasuredTest.from_data(
-        "simulated",
-        from_simulation(simulate(truth, plan, vehicle, seed=noise_seed)),
-        0.25,
-        VehicleData()
-        if args.engine_unknown
-        else VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth"),
+    truth, vehicle, measured = trial_recording(
+        args.truth, args.sweep, around, vehicle, args.noise_seed, not args.engine_unknown
     )
     settings = SearchSettings(
         generations=args.generations,

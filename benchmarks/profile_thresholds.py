@@ -27,11 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.identification_trial import PLAN, draw_truth, draw_vehicle
+from benchmarks.identification_trial import trial_recording
 from dtid.identification.model.response import model_drv_db
-from dtid.identification.model.test_setup import MeasuredTest
 from dtid.identification.pipeline import run_identification
-from dtid.identification.samples.testdata import from_simulation
 from dtid.identification.search.identify import SearchSettings
 from dtid.identification.search.parameterization import THETA_NAMES, theta_from_parameters
 from dtid.identification.uncertainty.comparison import jacobian_db, model_recordings
@@ -44,8 +42,6 @@ from dtid.identification.uncertainty.statistic import (
     statistic,
 )
 from dtid.simulator.parameters import reference_parameters
-from dtid.simulator.simulate import simulate
-from dtid.simulator.vehicle_data import VehicleData
 
 RESULTS = Path(__file__).parent / "results" / "identification_trial"
 DRAWS = 60
@@ -60,10 +56,7 @@ def thresholds(index: int) -> tuple[dict[str, float], dict[str, tuple[bool, bool
     """Truth ``index``'s drawn threshold per parameter (corrected units) and whether its stored
     profile's interval holds the truth with (3.84, the drawn threshold)."""
     stored = json.loads((RESULTS / f"truth{index}.json").read_text())
-    truth, vehicle = draw_truth(index), draw_vehicle(index)
-    data = from_simulation(simulate(truth, PLAN, vehicle, seed=100 + index))
-    known = VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth")
-    measured = MeasuredTest.from_data("simulated", data, 0.25, known)
+    truth, _, measured = trial_recording(index)
     report = run_identification([measured], reference_parameters(), settings=NO_SEARCH,
                                 profile_points=0)  # fmt: skip
     par, fit = report.parameterization, report.fit

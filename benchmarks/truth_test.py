@@ -19,19 +19,15 @@ test: nothing is asserted.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
 import numpy as np
 
-from benchmarks.identification_trial import PLAN, _drivetrain_of, draw_truth, draw_vehicle
-from dtid.identification.model.test_setup import MeasuredTest
+from benchmarks.identification_trial import PLAN, _drivetrain_of, trial_recording
 from dtid.identification.pipeline import IdentificationReport, run_identification
-from dtid.identification.samples.testdata import from_simulation
 from dtid.simulator.parameters import DrivetrainParameters, reference_parameters
-from dtid.simulator.simulate import simulate
-from dtid.simulator.vehicle_data import VehicleData, load_vehicle_data
+from dtid.simulator.vehicle_data import load_vehicle_data
 from dtid.workflow import measured_tests
 
 
@@ -53,14 +49,7 @@ def trial(
 ) -> tuple[IdentificationReport, DrivetrainParameters]:
     """The randomised trial's truth ``index`` simulated and identified as
     ``benchmarks/identification_trial.py --truth index`` does, and its truth."""
-    truth, vehicle = draw_truth(index), draw_vehicle(index)
-    plan = dataclasses.replace(PLAN, f1_hz=sweep[0], f2_hz=sweep[1])
-    measured = MeasuredTest.from_data(
-        "simulated",
-        from_simulation(simulate(truth, plan, vehicle, seed=100 + index)),
-        0.25,
-        VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth"),
-    )
+    truth, _, measured = trial_recording(index, sweep)
     return run_identification([measured], reference_parameters(), profile_points=0), truth
 
 

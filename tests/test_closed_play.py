@@ -3,7 +3,6 @@ the gear play is tested against an open one, and restarted where one fits better
 
 from __future__ import annotations
 
-import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -99,22 +98,11 @@ def test_a_search_that_closed_the_gear_play_is_restarted_in_the_open_plays_basin
     where the optimum nearest the truth, play open, fits at 0.0731. The search held at that
     point, the check finds the open play at half the stiffness and the search's last stages go
     on from there (0.0737 on 2026-12-07: c23 -25 %, d23 -39 %, eps23 -28 %)."""
-    from benchmarks.identification_trial import PLAN, draw_truth, draw_vehicle
+    from benchmarks.identification_trial import trial_recording
     from dtid.identification import pipeline
-    from dtid.identification.model.test_setup import MeasuredTest
-    from dtid.identification.samples.testdata import from_simulation
     from dtid.identification.search.identify import identify_from
-    from dtid.simulator.simulate import simulate
-    from dtid.simulator.vehicle_data import VehicleData
 
-    truth, vehicle = draw_truth(1, VEHICLE_1), draw_vehicle(1)
-    plan = dataclasses.replace(PLAN, f1_hz=0.5, f2_hz=20.0)
-    measured = MeasuredTest.from_data(
-        "simulated",
-        from_simulation(simulate(truth, plan, vehicle, seed=101)),
-        0.25,
-        VehicleData(vehicle.engine, vehicle.speed_average, ("all",), "the truth"),
-    )
+    truth, _, measured = trial_recording(1, (0.5, 20.0), VEHICLE_1)
     no_budget = SearchSettings(polish_evaluations=1, final_evaluations=1, newton_iterations=0)
 
     def search_that_closed_the_play(tests, par, ident, valid, *args, **kwargs):
