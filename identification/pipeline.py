@@ -789,10 +789,8 @@ def identify_runs(
     )
     if closed is not None and not closed.beats_estimate:
         logger.info(
-            "the search closed the gear play: with c23 held at %s times its %.4g N*m/rad no "
-            "open play fitted significantly better",
-            " and ".join(f"{f:g}" for f in STIFFNESS_FACTORS),
-            result.theta["c23"],
+            "the search closed the gear play; %s fitted no better: the play stays closed",
+            restart_finder("closed gear play", "c23"),
         )
     restart = None
     held = [
