@@ -13,10 +13,10 @@ eps23 -4 %) fits at 0.0731; a profile of c23 found the open play's basin, one of
 So before a closed gear play is reported, the gear coupling's stiffness is held at
 :data:`STIFFNESS_FACTORS` times the found value and everything else re-optimised as a profile's
 point is (:func:`dtid.identification.uncertainty.profile.profile_at`, no bisection): two points
-where a profile evaluates about thirteen, 10-15 s on two 60 s runs. A point that fits
-significantly better than the search's optimum (``beats_estimate``) restarts the search there, as
-a profile's would (:func:`dtid.identification.pipeline.identify_runs`). On that truth: 0.0756 at
-half the stiffness (play open, c23 -26 % of the truth).
+where a profile evaluates about thirteen, 5.6-7.0 s on two 60 s runs (docs/speed.md). A point
+that fits significantly better than the search's optimum (``beats_estimate``) restarts the search
+there, as a profile's would (:func:`dtid.identification.pipeline.identify_runs`). On that
+truth: 0.0756 at half the stiffness (play open, c23 -26 % of the truth).
 
 Where the profiles run (the default) the profile of c23 does this and more, so the check runs only
 without it. A search that ends with the play open is untouched.
@@ -44,8 +44,13 @@ def play_closed(objective: Objective, optimum_unit: np.ndarray) -> bool:
     if not {"c23", "eps23"} <= set(par.free):
         return False
     lower, upper = par.bounds_of("eps23")
-    eps23 = par.theta(optimum_unit[None])[0][THETA_NAMES.index("eps23")]
+    eps23 = _value(objective, optimum_unit, "eps23")
     return lower == 0.0 and eps23 <= EDGE_TOLERANCE * (upper - lower)
+
+
+def _value(objective: Objective, unit: np.ndarray, name: str) -> float:
+    """A setup-4 value (SI) of normalised free values."""
+    return float(objective.parameterization.theta(unit[None])[0][THETA_NAMES.index(name)])
 
 
 def closed_play_check(
@@ -73,7 +78,7 @@ def closed_play_check(
         return None
     par = objective.parameterization
     lower, upper = par.bounds_of("c23")
-    c23 = par.theta(optimum_unit[None])[0][THETA_NAMES.index("c23")]
+    c23 = _value(objective, optimum_unit, "c23")
     grid = np.clip((c23 * np.array(STIFFNESS_FACTORS) - lower) / (upper - lower), 0.0, 1.0)
     return profile_at(
         objective,
