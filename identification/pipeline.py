@@ -59,11 +59,17 @@ from dtid.identification.search.parameterization import (
 )
 from dtid.identification.search.runs import amplitude_levels, runs_at, split_runs
 from dtid.identification.search.start_values import start_thetas
-from dtid.identification.uncertainty.closed_play import STIFFNESS_FACTORS, closed_play_check
 from dtid.identification.uncertainty.comparison import (
     Comparison,
     outside_intervals,
     point_test,
+)
+from dtid.identification.uncertainty.gear_play import (
+    PLAY_FACTORS,
+    STIFFNESS_FACTORS,
+    gear_play_check,
+    moved_off,
+    play_closed,
 )
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
 from dtid.identification.uncertainty.statistic import THRESHOLD
@@ -229,16 +235,23 @@ def validation_runs(
 def restart_finder(found_by: str, parameter: str) -> str:
     """What found the better fit a search restarted from, as a phrase (``found_by`` and
     ``parameter`` as :class:`SearchRestart` and its JSON hold them)."""
-    if found_by == "closed gear play":
-        factors = " and ".join(f"{f:g}" for f in STIFFNESS_FACTORS)
-        return f"{parameter} held at {factors} times the closed gear play's value"
+    if found_by in GEAR_PLAY_CHECKS:
+        factors = STIFFNESS_FACTORS if found_by == "closed gear play" else PLAY_FACTORS
+        phrase = " and ".join(f"{f:.3g}" for f in factors)
+        return f"{parameter} held at {phrase} times the {found_by}'s value"
     return f"the {found_by} of {parameter}"
+
+
+GEAR_PLAY_CHECKS = ("closed gear play", "open gear play")
+"""``found_by`` of a restart the gear play's check started
+(:mod:`dtid.identification.uncertainty.gear_play`), by how the search had left the play."""
 
 
 @dataclass(frozen=True)
 class SearchRestart:
-    """The search restarted where a profile had found a better fit than its optimum
-    (:attr:`dtid.identification.uncertainty.profile.Profile.beats_estimate`).
+    """The search restarted where a profile had found a significantly better fit than its
+    optimum (:attr:`dtid.identification.uncertainty.profile.Profile.beats_estimate`), or the
+    gear play's check a better one (:func:`dtid.identification.uncertainty.gear_play.moved_off`).
 
     Attributes
     ----------
@@ -246,15 +259,16 @@ class SearchRestart:
         The profile that found it (the one whose minimum fitted best).
     statistic
         The search's optimum's likelihood-ratio statistic against that profile's minimum (above
-        the 95 % threshold, 3.84, and its margin).
+        the 95 % threshold, 3.84, and its margin, for a profile or a target test; above 0 for
+        the gear play's check).
     objective_search, objective_restart
         Eq. (17) at the search's optimum and where the restart ended (the report's estimate is
         the lower).
     search_theta
         The search's optimum, setup-4 values by name, SI units.
     found_by
-        What held the parameter: ``"profile"``, ``"target test"`` or ``"closed gear play"``
-        (:mod:`dtid.identification.uncertainty.closed_play`).
+        What held the parameter: ``"profile"``, ``"target test"``, or the gear play's check
+        where the search left the play closed or open (:data:`GEAR_PLAY_CHECKS`).
     """
 
     parameter: str
@@ -266,11 +280,20 @@ class SearchRestart:
 
     def message(self, adopted: bool) -> str:
         """What happened, for the log."""
+        finder = restart_finder(self.found_by, self.parameter)
+        if self.found_by in GEAR_PLAY_CHECKS:
+            how = (
+                f"fitted better than the search's optimum on fresh draws of the model (the "
+                f"optimum {self.statistic:.2f} above it on the 95 % scale)"
+            )
+        else:
+            how = (
+                f"found a better fit than the search (the search's optimum {self.statistic:.1f} "
+                f"above the profile's minimum on the 95 % scale, threshold {THRESHOLD:.2f}, or "
+                "its value outside the interval): the search had ended at another optimum"
+            )
         head = (
-            f"{restart_finder(self.found_by, self.parameter)} found a better fit than the "
-            f"search (the search's optimum {self.statistic:.1f} above the profile's minimum on "
-            f"the 95 % scale, threshold {THRESHOLD:.2f}, or its value outside the interval): the "
-            "search had ended at another optimum; restarted from there, "
+            f"{finder} {how}; restarted from there, "
             f"eq. (17) {self.objective_search:.4f} -> {self.objective_restart:.4f}"
         )
         if adopted and self.found_by == "profile":
@@ -782,23 +805,23 @@ def identify_runs(
         tested[name] = target_test(
             polish, measured_db, name, result.unit, width, settings.seed, coarse
         )
-    closed = (
+    gear = (
         None
-        if "c23" in profiles or "c23" in tested
-        else closed_play_check(polish, measured_db, result.unit, settings.seed, coarse)
+        if {"c23", "eps23"} & {*profiles, *tested}
+        else gear_play_check(polish, measured_db, result.unit, settings.seed, coarse)
     )
-    if closed is not None and not closed.beats_estimate:
+    gear_check = GEAR_PLAY_CHECKS[0 if play_closed(polish, result.unit) else 1]
+    if gear is not None and not moved_off(gear):
         logger.info(
-            "the search closed the gear play; %s fitted no better: the play stays closed",
-            restart_finder("closed gear play", "c23"),
+            "%s fitted no better than the search's optimum", restart_finder(gear_check, gear.name)
         )
     restart = None
     held = [
-        *((p, "profile") for p in profiles.values()),
-        *((t.profile, "target test") for t in tested.values()),
-        *([(closed, "closed gear play")] if closed is not None else []),
+        *((p, "profile") for p in profiles.values() if p.beats_estimate),
+        *((t.profile, "target test") for t in tested.values() if t.profile.beats_estimate),
+        *([(gear, gear_check)] if gear is not None and moved_off(gear) else []),
     ]
-    beaten = [(p, by) for p, by in held if p.beats_estimate and p.minimum_unit is not None]
+    beaten = [(p, by) for p, by in held if p.minimum_unit is not None]
     if beaten:  # a profile found a better fit than the search: go on from there
         lowest, found_by = min(beaten, key=lambda pair: float(np.min(pair[0].objective)))
         assert lowest.minimum_unit is not None

@@ -268,8 +268,8 @@ def unprofiled_note(follow_up: str | None) -> str:
     vehicle_1 the search put J3 +18 % and c23 +15 % off the truth where its profiles' intervals
     run -48/+35 % for c23 and ``dtid plan --after`` predicts 25 % and 26 % at 2 sigma for J3
     and c23; on a random vehicle like it the search closed the gear play (eq. 17 0.0889), which
-    the profile of c23, and now the closed play's own check
-    (:mod:`dtid.identification.uncertainty.closed_play`), restart at 0.0737, the truth's basin
+    the profile of c23, and now the gear play's own check
+    (:mod:`dtid.identification.uncertainty.gear_play`), restart at 0.0737, the truth's basin
     (docs/accuracy.md).
     """
     note = (
