@@ -807,7 +807,7 @@ def identify_runs(
         )
     gear = (
         None
-        if {"c23", "eps23"} & {*profiles, *tested}
+        if {"c23", "eps23"} & {*profiles, *tested} or not settings.gear_check
         else gear_play_check(polish, measured_db, result.unit, settings.seed, coarse)
     )
     gear_check = GEAR_PLAY_CHECKS[0 if play_closed(polish, result.unit) else 1]

@@ -160,8 +160,8 @@ def add_search_options(parser: argparse.ArgumentParser) -> None:
         "--single-start",
         action="store_true",
         help="polish and finish the evolution's best member alone, without the gear coupling's "
-        "scan: about half the time, but it ends in whichever basin that member lies (not for a "
-        "result to report)",
+        "scan and the gear play's check: about half the time, but it ends in whichever basin "
+        "that member lies (not for a result to report)",
     )
     parser.add_argument(
         "--profile-points",

@@ -137,6 +137,9 @@ class SearchSettings:
     newton_iterations
         Most Levenberg-Marquardt steps of stage 4 (it stops before, at the first step that
         does not improve or hold: 0-10 steps kept on the identification trial's eleven truths).
+    gear_check
+        Whether the pipeline checks the gear play the search ended at where no profile does
+        (:mod:`dtid.identification.uncertainty.gear_play`).
     seed
         Seed of the search.
     """
@@ -156,18 +159,22 @@ class SearchSettings:
     final_realizations: int = 8
     final_starts: int = 3
     newton_iterations: int = 20
+    gear_check: bool = True
     seed: int = 0
 
     def single_start(self) -> SearchSettings:
         """The same budget with one start (``--single-start``): the evolution's best member alone
-        polished and finished, without the gear coupling's scan. On the independent recordings
+        polished and finished, without the gear coupling's scan and the gear play's check
+        (``gear_check``). On the independent recordings
         (2 cores, 2026-12-07) 35 and 25 s against the search's 57 and 51 s; vehicle_2 ends at
         the search's point, vehicle_1 at eq. 17 0.0489 against 0.0478 (J3 +32, c23 +24, d23
         +71 %: 4 of issue 15's 11 targets against 6); with a small budget a quarter of the time.
         For runs whose subject is not the search (the worker's transport in the tests, replays
         of many logs), not for a result to report.
         """
-        return dataclasses.replace(self, polish_starts=1, scan_starts=0, final_starts=1)
+        return dataclasses.replace(
+            self, polish_starts=1, scan_starts=0, final_starts=1, gear_check=False
+        )
 
 
 @dataclass(frozen=True)
