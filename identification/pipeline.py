@@ -65,11 +65,12 @@ from dtid.identification.uncertainty.comparison import (
     point_test,
 )
 from dtid.identification.uncertainty.gear_play import (
+    GEAR_PLAY_CHECKS,
     PLAY_FACTORS,
     STIFFNESS_FACTORS,
+    check_name,
     gear_play_check,
     moved_off,
-    play_closed,
 )
 from dtid.identification.uncertainty.profile import Profile, profile, with_structure
 from dtid.identification.uncertainty.statistic import THRESHOLD
@@ -240,11 +241,6 @@ def restart_finder(found_by: str, parameter: str) -> str:
         phrase = " and ".join(f"{f:.3g}" for f in factors)
         return f"{parameter} held at {phrase} times the {found_by}'s value"
     return f"the {found_by} of {parameter}"
-
-
-GEAR_PLAY_CHECKS = ("closed gear play", "open gear play")
-"""``found_by`` of a restart the gear play's check started
-(:mod:`dtid.identification.uncertainty.gear_play`), by how the search had left the play."""
 
 
 @dataclass(frozen=True)
@@ -810,16 +806,16 @@ def identify_runs(
         if {"c23", "eps23"} & {*profiles, *tested} or not settings.gear_check
         else gear_play_check(polish, measured_db, result.unit, settings.seed, coarse)
     )
-    gear_check = GEAR_PLAY_CHECKS[0 if play_closed(polish, result.unit) else 1]
     if gear is not None and not moved_off(gear):
         logger.info(
-            "%s fitted no better than the search's optimum", restart_finder(gear_check, gear.name)
+            "%s fitted no better than the search's optimum",
+            restart_finder(check_name(gear), gear.name),
         )
     restart = None
     held = [
         *((p, "profile") for p in profiles.values() if p.beats_estimate),
         *((t.profile, "target test") for t in tested.values() if t.profile.beats_estimate),
-        *([(gear, gear_check)] if gear is not None and moved_off(gear) else []),
+        *([(gear, check_name(gear))] if gear is not None and moved_off(gear) else []),
     ]
     beaten = [(p, by) for p, by in held if p.minimum_unit is not None]
     if beaten:  # a profile found a better fit than the search: go on from there
