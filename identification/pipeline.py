@@ -66,8 +66,6 @@ from dtid.identification.uncertainty.comparison import (
 )
 from dtid.identification.uncertainty.gear_play import (
     GEAR_PLAY_CHECKS,
-    PLAY_FACTORS,
-    STIFFNESS_FACTORS,
     check_name,
     gear_play_check,
     moved_off,
@@ -237,8 +235,7 @@ def restart_finder(found_by: str, parameter: str) -> str:
     """What found the better fit a search restarted from, as a phrase (``found_by`` and
     ``parameter`` as :class:`SearchRestart` and its JSON hold them)."""
     if found_by in GEAR_PLAY_CHECKS:
-        factors = STIFFNESS_FACTORS if found_by == "closed gear play" else PLAY_FACTORS
-        phrase = " and ".join(f"{f:.3g}" for f in factors)
+        phrase = " and ".join(f"{f:.3g}" for f in GEAR_PLAY_CHECKS[found_by])
         return f"{parameter} held at {phrase} times the {found_by}'s value"
     return f"the {found_by} of {parameter}"
 

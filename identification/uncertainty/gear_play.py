@@ -53,9 +53,9 @@ STIFFNESS_FACTORS = (0.5, 1.5)
 optimum's."""
 PLAY_FACTORS = (2.0 / 3.0, 1.5)
 """Where the play ended open, the play is held at these multiples of the optimum's."""
-GEAR_PLAY_CHECKS = ("closed gear play", "open gear play")
+GEAR_PLAY_CHECKS = {"closed gear play": STIFFNESS_FACTORS, "open gear play": PLAY_FACTORS}
 """The check's names by how the search had left the play (``search_restart.found_by`` of a
-restart it started)."""
+restart it started), and the multiples of the optimum's value each holds."""
 
 
 def play_closed(objective: Objective, optimum_unit: np.ndarray) -> bool:
@@ -126,7 +126,7 @@ def gear_play_check(
 
 def check_name(check: Profile) -> str:
     """The check's name (:data:`GEAR_PLAY_CHECKS`): it held c23 where the play had closed."""
-    return GEAR_PLAY_CHECKS[0 if check.name == "c23" else 1]
+    return "closed gear play" if check.name == "c23" else "open gear play"
 
 
 def moved_off(check: Profile) -> bool:
